@@ -1,0 +1,1 @@
+//! Shared fixtures for the hardware-in-the-loop suite.

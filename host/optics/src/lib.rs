@@ -1,0 +1,1 @@
+//! Simulated optical scenes rendered from true motor shaft positions.

@@ -1,0 +1,2 @@
+//! The `optalign` command.
+fn main() {}
