@@ -1,0 +1,36 @@
+//! Protocol-wide constants: the version number and the sizes every buffer is built from.
+
+/// The protocol version spoken by this build. Peers refuse a handshake with any other.
+///
+/// Bump it whenever the encoding of any message other than `Hello` / `Identity` changes;
+/// those two are frozen so a mismatch can always be reported.
+pub const PROTOCOL_VERSION: u16 = 1;
+
+/// Most axes one controller exposes (a Pico W drives four; the simulated peer up to eight).
+pub const MAX_AXES: usize = 8;
+
+/// Largest serialized message, before the CRC and COBS stuffing are added.
+pub const MAX_PAYLOAD: usize = 480;
+
+/// Largest frame on the wire: payload, 4-byte CRC, COBS overhead and the 0x00 delimiter.
+pub const MAX_FRAME: usize = 512;
+
+/// Bytes of the CRC-32C trailer inside each frame.
+pub const CRC_LEN: usize = 4;
+
+/// Longest human-readable reason carried by an error reply.
+pub const REASON_LEN: usize = 96;
+
+/// Longest Wi-Fi SSID (802.11 limit).
+pub const SSID_LEN: usize = 32;
+
+/// Longest WPA2 passphrase.
+pub const PASSPHRASE_LEN: usize = 64;
+
+/// Size of the challenge nonce a peer issues for authentication.
+pub const NONCE_LEN: usize = 16;
+
+/// Size of the pre-shared key and of the HMAC-SHA256 tag.
+pub const KEY_LEN: usize = 32;
+
+const _: () = assert!(MAX_PAYLOAD + CRC_LEN + (MAX_PAYLOAD + CRC_LEN) / 254 + 2 <= MAX_FRAME);

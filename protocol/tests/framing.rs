@@ -1,0 +1,395 @@
+//! Property tests of the framing: round trips, resynchronisation and hostile input.
+
+use heapless::{String, Vec};
+use optalign_protocol::auth;
+use optalign_protocol::*;
+use proptest::prelude::*;
+
+fn axis_values() -> impl Strategy<Value = Vec<AxisValue, MAX_AXES>> {
+    prop::collection::vec((any::<u8>(), any::<i32>()), 0..=MAX_AXES).prop_map(|v| {
+        v.into_iter()
+            .map(|(axis, steps)| AxisValue { axis, steps })
+            .collect()
+    })
+}
+
+fn text<const N: usize>() -> impl Strategy<Value = String<N>> {
+    prop::collection::vec(any::<char>(), 0..N / 4).prop_map(|chars| {
+        let mut s = String::new();
+        for c in chars {
+            if s.push(c).is_err() {
+                break;
+            }
+        }
+        s
+    })
+}
+
+fn limits() -> impl Strategy<Value = SoftLimits> {
+    (any::<i32>(), any::<i32>()).prop_map(|(min, max)| SoftLimits { min, max })
+}
+
+fn config() -> impl Strategy<Value = AxisConfig> {
+    (
+        any::<u32>(),
+        any::<u32>(),
+        any::<u16>(),
+        prop_oneof![
+            Just(BacklashMode::Off),
+            Just(BacklashMode::OneSided),
+            Just(BacklashMode::TakeUp)
+        ],
+        prop_oneof![Just(Approach::Positive), Just(Approach::Negative)],
+        any::<u16>(),
+        limits(),
+        any::<bool>(),
+        any::<u32>(),
+        prop_oneof![
+            Just(DriverKind::UnipolarHalfStep),
+            Just(DriverKind::StepDir)
+        ],
+    )
+        .prop_map(
+            |(
+                max_speed,
+                acceleration,
+                backlash,
+                backlash_mode,
+                approach,
+                overshoot_margin,
+                limits,
+                invert,
+                idle_power_down_ms,
+                driver,
+            )| AxisConfig {
+                max_speed,
+                acceleration,
+                backlash,
+                backlash_mode,
+                approach,
+                overshoot_margin,
+                limits,
+                invert,
+                idle_power_down_ms,
+                driver,
+            },
+        )
+}
+
+fn command() -> impl Strategy<Value = Command> {
+    prop_oneof![
+        any::<u16>().prop_map(|protocol_version| Command::Hello { protocol_version }),
+        Just(Command::Status),
+        axis_values().prop_map(|targets| Command::MoveTo { targets }),
+        axis_values().prop_map(|deltas| Command::MoveBy { deltas }),
+        Just(Command::Stop),
+        Just(Command::EmergencyStop),
+        (any::<u8>(), any::<i32>())
+            .prop_map(|(axis, position)| Command::SetPosition { axis, position }),
+        any::<u8>().prop_map(|axis| Command::GetConfig { axis }),
+        (any::<u8>(), config()).prop_map(|(axis, config)| Command::SetConfig { axis, config }),
+        Just(Command::SaveConfig),
+        (text::<32>(), text::<64>())
+            .prop_map(|(ssid, passphrase)| Command::ProvisionWifi { ssid, passphrase }),
+        any::<[u8; 32]>().prop_map(|key| Command::SetKey { key }),
+        Just(Command::AuthChallenge),
+        any::<[u8; 32]>().prop_map(|tag| Command::AuthResponse { tag }),
+    ]
+}
+
+fn request() -> impl Strategy<Value = Request> {
+    (any::<u32>(), command()).prop_map(|(id, command)| Request {
+        id: RequestId(id),
+        command,
+    })
+}
+
+fn axis_status() -> impl Strategy<Value = AxisStatus> {
+    (
+        any::<(i32, i32, i32, bool, bool)>(),
+        prop_oneof![
+            Just(Direction::Idle),
+            Just(Direction::Positive),
+            Just(Direction::Negative)
+        ],
+        prop_oneof![
+            Just(Slack::Unknown),
+            Just(Slack::TakenUpPositive),
+            Just(Slack::TakenUpNegative)
+        ],
+        limits(),
+        any::<u8>(),
+    )
+        .prop_map(
+            |(
+                (position, motor_steps, target, moving, powered),
+                direction,
+                slack,
+                limits,
+                faults,
+            )| AxisStatus {
+                position,
+                motor_steps,
+                target,
+                moving,
+                direction,
+                slack,
+                limits,
+                faults: Faults(faults),
+                powered,
+            },
+        )
+}
+
+fn error_reply() -> impl Strategy<Value = ErrorReply> {
+    (any::<u16>(), text::<96>()).prop_map(|(code, reason)| ErrorReply {
+        code: ErrorCode(code),
+        reason,
+    })
+}
+
+fn reply() -> impl Strategy<Value = Reply> {
+    prop_oneof![
+        (any::<(u16, u64, u8, u32)>(), text::<16>(), text::<24>()).prop_map(
+            |((protocol_version, board_id, axes, caps), firmware_version, board)| {
+                Reply::Hello(Identity {
+                    protocol_version,
+                    firmware_version,
+                    board,
+                    board_id,
+                    axes,
+                    capabilities: Capabilities(caps),
+                })
+            }
+        ),
+        (
+            prop::collection::vec(axis_status(), 0..=MAX_AXES),
+            any::<(bool, bool, bool, bool, u64)>()
+        )
+            .prop_map(
+                |(
+                    axes,
+                    (trusted_link, authenticated, key_provisioned, emergency_stopped, uptime_ms),
+                )| {
+                    Reply::Status(Status {
+                        axes: axes.into_iter().collect(),
+                        session: SessionState {
+                            trusted_link,
+                            authenticated,
+                            key_provisioned,
+                        },
+                        emergency_stopped,
+                        uptime_ms,
+                    })
+                }
+            ),
+        any::<u32>().prop_map(|duration_ms| Reply::MoveStarted { duration_ms }),
+        Just(Reply::Ok),
+        config().prop_map(Reply::Config),
+        any::<[u8; 16]>().prop_map(|nonce| Reply::Challenge { nonce }),
+        error_reply().prop_map(Reply::Error),
+    ]
+}
+
+fn peer_message() -> impl Strategy<Value = PeerMessage> {
+    prop_oneof![
+        (any::<u32>(), reply()).prop_map(|(id, reply)| PeerMessage::Reply {
+            id: RequestId(id),
+            reply
+        }),
+        (
+            any::<u32>(),
+            prop::collection::vec(any::<i32>(), 0..=MAX_AXES),
+            0..4u8
+        )
+            .prop_map(|(id, positions, outcome)| {
+                PeerMessage::Notify(Notification::MoveFinished {
+                    request: RequestId(id),
+                    outcome: [
+                        MoveOutcome::Completed,
+                        MoveOutcome::Stopped,
+                        MoveOutcome::EmergencyStopped,
+                        MoveOutcome::Faulted,
+                    ][outcome as usize],
+                    positions: positions.into_iter().collect(),
+                })
+            }),
+        (any::<u8>(), any::<u8>()).prop_map(|(axis, faults)| PeerMessage::Notify(
+            Notification::Fault {
+                axis,
+                faults: Faults(faults)
+            }
+        )),
+        error_reply().prop_map(PeerMessage::LinkError),
+    ]
+}
+
+fn frame_of<T: serde::Serialize>(message: &T) -> std::vec::Vec<u8> {
+    let mut out = [0u8; MAX_FRAME];
+    let len = encode_frame(message, &mut out).expect("every message fits a frame");
+    out[..len].to_vec()
+}
+
+fn decode_all<T: serde::de::DeserializeOwned>(
+    bytes: &[u8],
+) -> std::vec::Vec<Result<T, FrameError>> {
+    let mut decoder = FrameDecoder::new();
+    let mut out = std::vec::Vec::new();
+    decoder.feed(bytes, |m| out.push(m));
+    out
+}
+
+proptest! {
+    #[test]
+    fn every_request_round_trips(req in request()) {
+        let frame = frame_of(&req);
+        prop_assert!(frame.len() <= MAX_FRAME);
+        prop_assert_eq!(frame.iter().filter(|&&b| b == 0).count(), 1, "only the delimiter is zero");
+        prop_assert_eq!(decode_all::<Request>(&frame), vec![Ok(req)]);
+    }
+
+    #[test]
+    fn every_peer_message_round_trips(msg in peer_message()) {
+        let frame = frame_of(&msg);
+        prop_assert_eq!(decode_all::<PeerMessage>(&frame), vec![Ok(msg)]);
+    }
+
+    #[test]
+    fn arbitrary_bytes_never_panic(bytes in prop::collection::vec(any::<u8>(), 0..4096)) {
+        let results = decode_all::<Request>(&bytes);
+        prop_assert!(results.len() <= bytes.iter().filter(|&&b| b == 0).count());
+    }
+
+    #[test]
+    fn decoder_resynchronises_after_garbage(garbage in prop::collection::vec(any::<u8>(), 0..2000), req in request()) {
+        // Garbage, then a delimiter, then a good frame: the good frame always comes out last.
+        let mut stream = garbage.clone();
+        stream.push(0);
+        stream.extend(frame_of(&req));
+        let results = decode_all::<Request>(&stream);
+        prop_assert_eq!(results.last(), Some(&Ok(req)));
+    }
+
+    #[test]
+    fn torn_frames_reassemble(reqs in prop::collection::vec(request(), 1..6), cuts in prop::collection::vec(1usize..40, 1..20)) {
+        // Merged into one stream, delivered in arbitrary pieces.
+        let stream: std::vec::Vec<u8> = reqs.iter().flat_map(frame_of).collect();
+        let mut decoder = FrameDecoder::new();
+        let mut out = std::vec::Vec::new();
+        let mut rest = &stream[..];
+        for cut in cuts.iter().cycle() {
+            if rest.is_empty() { break; }
+            let (piece, tail) = rest.split_at((*cut).min(rest.len()));
+            decoder.feed::<Request>(piece, |m| out.push(m.unwrap()));
+            rest = tail;
+        }
+        prop_assert_eq!(out, reqs);
+    }
+
+    #[test]
+    fn a_flipped_byte_is_caught(req in request(), index in any::<prop::sample::Index>(), flip in 1u8..=255) {
+        let mut frame = frame_of(&req);
+        let body = frame.len() - 1;
+        let i = index.index(body);
+        frame[i] ^= flip;
+        let results = decode_all::<Request>(&frame);
+        // A corrupted frame never decodes as a different message: it is an error, or (if
+        // the corruption produced a zero) split into pieces that are all errors.
+        prop_assert!(!results.is_empty());
+        for r in results {
+            prop_assert!(r.is_err(), "corruption went undetected: {:?}", r);
+        }
+    }
+}
+
+#[test]
+fn oversized_frame_is_one_error_and_the_next_frame_survives() {
+    let mut stream = vec![0x55u8; MAX_FRAME * 3];
+    stream.push(0);
+    let good = Request {
+        id: RequestId(7),
+        command: Command::Status,
+    };
+    stream.extend(frame_of(&good));
+    let results = decode_all::<Request>(&stream);
+    assert_eq!(results, vec![Err(FrameError::TooLarge), Ok(good)]);
+}
+
+#[test]
+fn bad_crc_is_reported_as_such() {
+    let req = Request {
+        id: RequestId(1),
+        command: Command::Stop,
+    };
+    let mut out = [0u8; MAX_FRAME];
+    let mut raw = postcard::to_allocvec(&req).unwrap();
+    raw.extend_from_slice(&0xdead_beefu32.to_le_bytes());
+    let len = cobs::encode(&raw, &mut out);
+    out[len] = 0;
+    assert_eq!(
+        decode_all::<Request>(&out[..=len]),
+        vec![Err(FrameError::BadCrc)]
+    );
+}
+
+#[test]
+fn valid_crc_over_a_non_message_is_malformed() {
+    let raw = [0xffu8, 0xff, 0xff, 0xff, 0xff, 0xff];
+    let crc = crc::Crc::<u32>::new(&crc::CRC_32_ISCSI).checksum(&raw);
+    let mut payload = raw.to_vec();
+    payload.extend_from_slice(&crc.to_le_bytes());
+    let mut out = [0u8; MAX_FRAME];
+    let len = cobs::encode(&payload, &mut out);
+    out[len] = 0;
+    assert_eq!(
+        decode_all::<Request>(&out[..=len]),
+        vec![Err(FrameError::Malformed)]
+    );
+}
+
+#[test]
+fn the_largest_messages_fit_a_frame() {
+    let mut targets = Vec::new();
+    for axis in 0..MAX_AXES as u8 {
+        targets
+            .push(AxisValue {
+                axis,
+                steps: i32::MIN,
+            })
+            .unwrap();
+    }
+    frame_of(&Request {
+        id: RequestId(u32::MAX),
+        command: Command::MoveTo { targets },
+    });
+    let long = |n| core::iter::repeat_n('\u{10FFFF}', n).collect::<std::string::String>();
+    let mut reason = String::<96>::new();
+    reason.push_str(&long(24)).unwrap();
+    frame_of(&PeerMessage::LinkError(ErrorReply {
+        code: ErrorCode(u16::MAX),
+        reason,
+    }));
+}
+
+#[test]
+fn error_reasons_are_cut_not_rejected() {
+    let reply = error_reply!(ErrorCode::BUSY, "{}", "x".repeat(500));
+    assert_eq!(reply.reason.len(), 96);
+    assert_eq!(reply.code.name(), "busy");
+    assert_eq!(ErrorCode(9999).name(), "unknown");
+}
+
+#[test]
+fn challenge_tags_verify_only_with_the_right_key_and_nonce() {
+    let key = auth::derive_key("s3cret");
+    let nonce = [7u8; 16];
+    let tag = auth::challenge_tag(&key, &nonce);
+    assert!(auth::verify_tag(&key, &nonce, &tag));
+    assert!(!auth::verify_tag(
+        &auth::derive_key("s3cret "),
+        &nonce,
+        &tag
+    ));
+    assert!(!auth::verify_tag(&key, &[8u8; 16], &tag));
+    assert_ne!(auth::derive_key("a"), auth::derive_key("b"));
+}
