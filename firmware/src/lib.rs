@@ -1,2 +1,41 @@
-//! optalign firmware core: motion planning, backlash, limits, persistence and the command dispatcher.
+//! optalign firmware core: motion planning, backlash compensation, soft limits,
+//! persistence and the command dispatcher of a motor controller.
+//!
+//! Hardware independent and allocation free: the board image (Pico W) and the host's
+//! simulated peer both embed a [`Controller`] and feed it requests, time and a
+//! [`StepDriver`]. The controller never blocks and never panics on any input.
+//!
+//! How an embedder drives it:
+//! - every decoded request goes to [`Controller::handle`], whose `out` receives exactly one
+//!   message, the reply, for that session;
+//! - a frame that could not be decoded goes to [`Controller::link_error`];
+//! - [`Controller::poll`] runs whenever [`Controller::next_deadline_us`] is due (and may run
+//!   more often); its `out` receives the notifications meant for *every* session
+//!   (`MoveFinished`, `Fault`), which the embedder broadcasts. Notifications raised while
+//!   handling a request (an emergency stop, a move replaced before it began) are queued and
+//!   delivered by the next `poll`; `next_deadline_us` is then due at once.
 #![cfg_attr(not(test), no_std)]
+
+mod axis;
+pub mod config;
+mod controller;
+mod dispatch;
+pub mod driver;
+pub mod gear;
+mod motion;
+pub mod path;
+pub mod ramp;
+pub mod record;
+mod replay;
+pub mod session;
+#[cfg(any(test, feature = "sim"))]
+pub mod sim;
+mod slots;
+pub mod storage;
+#[cfg(test)]
+mod tests;
+
+pub use controller::{BoardInfo, Controller};
+pub use driver::{StepDirection, StepDriver, half_step_coils};
+pub use session::{LinkKind, RngSource, Session};
+pub use storage::{RamStorage, Storage, StorageError};

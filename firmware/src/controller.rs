@@ -1,0 +1,389 @@
+//! The controller: every piece of firmware state, the step loop and persistence.
+//!
+//! Requests are handled in [`crate::dispatch`]; this module owns the time-driven side:
+//! [`Controller::poll`] makes the steps that fell due, finishes moves, powers coils up and
+//! down and writes the record when motion stops.
+
+use heapless::{Deque, Vec};
+use optalign_protocol::auth::Key;
+use optalign_protocol::{
+    AxisConfig, AxisStatus, Capabilities, Direction, Faults, MAX_AXES, MoveOutcome, Notification,
+    PeerMessage, RequestId, SessionState, Status,
+};
+
+use crate::axis::Axis;
+use crate::config::{default_config, validate};
+use crate::driver::StepDriver;
+use crate::gear::{Gear, Travel};
+use crate::motion::Move;
+use crate::path::effective_backlash;
+use crate::record::{Record, WifiCredentials};
+use crate::replay::ReplyCache;
+use crate::session::{LinkKind, Session};
+use crate::slots::Journal;
+use crate::storage::{Storage, StorageError};
+
+/// Notifications held between a request and the next poll.
+const OUTBOX_LEN: usize = 16;
+
+/// Who the board is; reported in the handshake.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct BoardInfo {
+    pub board: &'static str,
+    pub firmware_version: &'static str,
+    pub board_id: u64,
+    /// Axes driven (at most `MAX_AXES`).
+    pub axes: u8,
+    /// [`Capabilities`] bits.
+    pub capabilities: u32,
+}
+
+/// Where an axis comes to rest when the motion in progress has run out.
+#[derive(Clone, Copy)]
+pub(crate) struct Rest {
+    pub position: i32,
+    pub gear: Gear,
+}
+
+/// The whole firmware state.
+pub struct Controller<S: Storage> {
+    pub(crate) info: BoardInfo,
+    storage: S,
+    journal: Journal,
+    pub(crate) axes: Vec<Axis, MAX_AXES>,
+    pub(crate) key: Option<Key>,
+    /// Bumped by every new key, revoking earlier authentications.
+    pub(crate) key_epoch: u32,
+    pub(crate) wifi: Option<WifiCredentials>,
+    /// The move being executed.
+    pub(crate) active: Option<Move>,
+    /// The move that starts when the active one has braked to a stop.
+    pub(crate) pending: Option<Move>,
+    pub(crate) replies: ReplyCache,
+    outbox: Deque<Notification, OUTBOX_LEN>,
+    pub(crate) emergency: bool,
+    boot_us: u64,
+    now_us: u64,
+    persist_due: bool,
+    storage_failures: u32,
+}
+
+impl<S: Storage> Controller<S> {
+    /// Starts from the newest valid record in `storage`. A blank storage is a fresh board
+    /// (defaults, positions 0, no fault); a storage whose records are all corrupt gives the
+    /// defaults with `Faults::POSITION_LOST` on every axis. Coils start off.
+    pub fn new(info: BoardInfo, mut storage: S, now_us: u64) -> Self {
+        let capabilities = Capabilities(info.capabilities);
+        let (journal, loaded) = Journal::load(&mut storage);
+        let mut axes = Vec::new();
+        for index in 0..usize::from(info.axes).min(MAX_AXES) {
+            let defaults = default_config(capabilities);
+            let axis = match &loaded {
+                Ok(Some(record)) => match record.axes.get(index) {
+                    Some(saved) => {
+                        let valid = u8::try_from(index)
+                            .is_ok_and(|i| validate(i, &saved.config, capabilities).is_ok());
+                        Axis::restore(saved, if valid { saved.config } else { defaults })
+                    }
+                    None => lost(defaults),
+                },
+                Err(_) => lost(defaults),
+                Ok(None) => Axis::new(defaults),
+            };
+            let _ = axes.push(axis);
+        }
+        let (key, wifi) = match loaded {
+            Ok(Some(record)) => (record.key, record.wifi),
+            Ok(None) | Err(_) => (None, None),
+        };
+        Self {
+            info,
+            storage,
+            journal,
+            axes,
+            key,
+            key_epoch: 0,
+            wifi,
+            active: None,
+            pending: None,
+            replies: ReplyCache::new(),
+            outbox: Deque::new(),
+            emergency: false,
+            boot_us: now_us,
+            now_us,
+            persist_due: false,
+            storage_failures: 0,
+        }
+    }
+
+    pub fn storage(&self) -> &S {
+        &self.storage
+    }
+
+    pub fn storage_mut(&mut self) -> &mut S {
+        &mut self.storage
+    }
+
+    /// Whether a move is running or waiting to run.
+    pub fn is_moving(&self) -> bool {
+        self.active.is_some() || self.pending.is_some()
+    }
+
+    /// The stored Wi-Fi credentials, for the board to join its network.
+    pub fn wifi(&self) -> Option<&WifiCredentials> {
+        self.wifi.as_ref()
+    }
+
+    /// Record writes that failed since start-up (motion goes on regardless).
+    pub fn storage_failures(&self) -> u32 {
+        self.storage_failures
+    }
+
+    /// Takes in the time of a call; time never goes back.
+    pub(crate) fn observe(&mut self, now_us: u64) -> u64 {
+        self.now_us = self.now_us.max(now_us);
+        self.now_us
+    }
+
+    /// When `poll` must next run: at once when work is waiting, at the next step, at a
+    /// move's start, or when idle coils are due to be released; `None` when nothing is.
+    pub fn next_deadline_us(&self) -> Option<u64> {
+        let immediate = !self.outbox.is_empty()
+            || self.axes.iter().any(|a| a.cut_pending)
+            || (self.persist_due && self.active.is_none());
+        let motion = self.active.as_ref().map(|mv| {
+            if mv.is_started() {
+                mv.next_step_us().unwrap_or(self.now_us)
+            } else {
+                mv.start_us()
+            }
+        });
+        let power_down = self
+            .axes
+            .iter()
+            .filter(|a| a.powered)
+            .filter_map(|a| a.power_down_at)
+            .min();
+        [immediate.then_some(self.now_us), motion, power_down]
+            .into_iter()
+            .flatten()
+            .min()
+    }
+
+    /// Does everything due at or before `now_us`, in time order: delivers queued
+    /// notifications, releases coils after an emergency stop, makes the due steps, finishes
+    /// moves (`MoveFinished` to `out`), starts a replacing move, releases idle coils and
+    /// writes the record once motion has stopped.
+    pub fn poll(
+        &mut self,
+        now_us: u64,
+        driver: &mut dyn StepDriver,
+        out: &mut dyn FnMut(PeerMessage),
+    ) {
+        let now = self.observe(now_us);
+        while let Some(notification) = self.outbox.pop_front() {
+            out(PeerMessage::Notify(notification));
+        }
+        for (index, axis) in (0u8..).zip(self.axes.iter_mut()) {
+            if axis.cut_pending {
+                axis.cut_pending = false;
+                axis.powered = false;
+                driver.set_power(index, false, axis.coil_steps);
+            }
+        }
+        self.run_motion(now, driver, out);
+        for (index, axis) in (0u8..).zip(self.axes.iter_mut()) {
+            if axis.powered && axis.power_down_at.is_some_and(|t| t <= now) {
+                axis.powered = false;
+                axis.power_down_at = None;
+                driver.set_power(index, false, axis.coil_steps);
+            }
+        }
+        if self.persist_due && self.active.is_none() {
+            self.persist_due = false;
+            // A failure is counted; motion never depends on storage.
+            let _ = self.persist();
+        }
+    }
+
+    fn run_motion(
+        &mut self,
+        now: u64,
+        driver: &mut dyn StepDriver,
+        out: &mut dyn FnMut(PeerMessage),
+    ) {
+        loop {
+            let Some(mv) = self.active.as_mut() else {
+                return;
+            };
+            if !mv.is_started() {
+                if mv.start_us() > now {
+                    return;
+                }
+                mv.mark_started();
+                for index in mv.stepping_axes() {
+                    if let Some(axis) = self.axes.get_mut(usize::from(index)) {
+                        axis.power_down_at = None;
+                        if !axis.powered {
+                            axis.powered = true;
+                            driver.set_power(index, true, axis.coil_steps);
+                        }
+                    }
+                }
+            }
+            if let Some(step) = mv.take_step(now) {
+                if let Some(axis) = self.axes.get_mut(usize::from(step.axis)) {
+                    let (direction, coil_steps) = axis.step(step.travel);
+                    axis.last_step_us = step.at_us;
+                    driver.step(step.axis, direction, coil_steps);
+                }
+                continue;
+            }
+            if !mv.is_finished() {
+                return;
+            }
+            let (request, outcome) = (mv.request(), mv.outcome());
+            let end = mv.end_us();
+            out(PeerMessage::Notify(self.move_finished(request, outcome)));
+            for axis in self
+                .axes
+                .iter_mut()
+                .filter(|a| a.powered && a.power_down_at.is_none())
+            {
+                let idle_ms = axis.config.idle_power_down_ms;
+                if idle_ms > 0 {
+                    let since = axis.last_step_us.max(end);
+                    axis.power_down_at = Some(since.saturating_add(u64::from(idle_ms) * 1000));
+                }
+            }
+            self.active = self.pending.take();
+            if self.active.is_none() {
+                self.persist_due = true;
+            }
+        }
+    }
+
+    pub(crate) fn move_finished(&self, request: RequestId, outcome: MoveOutcome) -> Notification {
+        Notification::MoveFinished {
+            request,
+            outcome,
+            positions: self.axes.iter().map(|a| a.position).collect(),
+        }
+    }
+
+    /// Queues a notification for the next poll (the oldest is dropped when full).
+    pub(crate) fn queue(&mut self, notification: Notification) {
+        if let Err(notification) = self.outbox.push_back(notification) {
+            self.outbox.pop_front();
+            let _ = self.outbox.push_back(notification);
+        }
+    }
+
+    /// Asks the next poll to write the record (once motion has stopped).
+    pub(crate) fn persist_soon(&mut self) {
+        self.persist_due = true;
+    }
+
+    /// Writes the record now.
+    pub(crate) fn persist(&mut self) -> Result<(), StorageError> {
+        let record = Record {
+            key: self.key,
+            wifi: self.wifi.clone(),
+            axes: self.axes.iter().map(Axis::record).collect(),
+        };
+        let result = self.journal.save(&mut self.storage, &record);
+        if result.is_err() {
+            self.storage_failures = self.storage_failures.saturating_add(1);
+        }
+        result
+    }
+
+    /// Where each axis comes to rest once `motion` (a move already told to stop) has run out.
+    pub(crate) fn rest_state(&self, motion: Option<&Move>) -> Vec<Rest, MAX_AXES> {
+        (0u8..)
+            .zip(self.axes.iter())
+            .map(|(index, axis)| {
+                let backlash = effective_backlash(&axis.config);
+                let mut rest = Rest {
+                    position: axis.position,
+                    gear: axis.gear,
+                };
+                for leg in motion.map(|mv| mv.remaining(index)).unwrap_or_default() {
+                    let (gear, load) = rest.gear.advance(leg.travel, leg.motor_steps, backlash);
+                    let load = i32::try_from(load).unwrap_or(i32::MAX);
+                    rest = Rest {
+                        position: rest
+                            .position
+                            .saturating_add(load.saturating_mul(leg.travel.sign())),
+                        gear,
+                    };
+                }
+                rest
+            })
+            .collect()
+    }
+
+    /// Whether `axis` takes part in the running or the waiting move.
+    pub(crate) fn axis_busy(&self, axis: u8) -> bool {
+        [&self.active, &self.pending]
+            .into_iter()
+            .flatten()
+            .any(|mv| mv.target(axis).is_some())
+    }
+
+    /// The state of the controller as `session` sees it.
+    pub fn status(&self, session: &Session, now_us: u64) -> Status {
+        let now = now_us.max(self.now_us);
+        let axes = (0u8..)
+            .zip(self.axes.iter())
+            .map(|(index, axis)| {
+                let moves = [&self.pending, &self.active];
+                let target = moves
+                    .iter()
+                    .find_map(|mv| mv.as_ref().and_then(|mv| mv.target(index)))
+                    .unwrap_or(axis.position);
+                let moving = moves
+                    .iter()
+                    .flat_map(|mv| mv.iter())
+                    .any(|mv| mv.stepping_axes().any(|a| a == index));
+                let direction = match self.active.as_ref().and_then(|mv| mv.travel(index)) {
+                    Some(Travel::Positive) => Direction::Positive,
+                    Some(Travel::Negative) => Direction::Negative,
+                    None => Direction::Idle,
+                };
+                AxisStatus {
+                    position: axis.position,
+                    motor_steps: axis.motor_steps,
+                    target,
+                    moving,
+                    direction,
+                    slack: axis.gear.slack(),
+                    limits: axis.config.limits,
+                    faults: axis.faults,
+                    powered: axis.powered,
+                }
+            })
+            .collect();
+        Status {
+            axes,
+            session: SessionState {
+                trusted_link: session.link() == LinkKind::Serial,
+                authenticated: self.is_authenticated(session),
+                key_provisioned: self.key.is_some(),
+            },
+            emergency_stopped: self.emergency,
+            uptime_ms: now.saturating_sub(self.boot_us) / 1000,
+        }
+    }
+
+    pub(crate) fn is_authenticated(&self, session: &Session) -> bool {
+        self.key.is_some() && session.authenticated == Some(self.key_epoch)
+    }
+}
+
+/// A fresh axis whose position could not be restored.
+fn lost(config: AxisConfig) -> Axis {
+    let mut axis = Axis::new(config);
+    axis.faults.0 |= Faults::POSITION_LOST;
+    axis
+}

@@ -1,0 +1,441 @@
+//! The command dispatcher: handshake, access control, the request-id memory, and the
+//! execution of every command.
+//!
+//! Order of checks: handshake, then access (so a session without access learns nothing
+//! from the reply memory, not even a cached reply), then the reply memory, then the command.
+//!
+//! A move arriving while another runs replaces it: the running move brakes to a stop along
+//! its ramps (its `MoveFinished` says `Stopped`), and the new one is planned from where the
+//! axes come to rest (known exactly at once, since braking is deterministic) and starts
+//! when they do; its `MoveStarted` duration includes the braking. `MoveBy` deltas are
+//! relative to that rest position. A move that was waiting for such a stop and is replaced
+//! in turn never runs; it finishes `Stopped` at once.
+
+use heapless::String;
+use optalign_protocol::auth::verify_tag;
+use optalign_protocol::error_reply;
+use optalign_protocol::limits::{KEY_LEN, NONCE_LEN};
+use optalign_protocol::{
+    Access, AxisConfig, AxisValue, Capabilities, Command, ErrorCode, ErrorReply, Faults,
+    FrameError, Identity, MAX_AXES, MoveOutcome, Notification, PROTOCOL_VERSION, PeerMessage,
+    Reply, Request, RequestId,
+};
+
+use crate::config::validate;
+use crate::controller::Controller;
+use crate::motion::{AxisPlan, Move};
+use crate::path::plan_path;
+use crate::record::WifiCredentials;
+use crate::replay::ReplyCache;
+use crate::session::{LinkKind, RngSource, Session};
+use crate::storage::Storage;
+
+impl<S: Storage> Controller<S> {
+    /// Handles one request; `out` receives its reply (and nothing else). Notifications the
+    /// request causes are delivered by the next [`poll`](Self::poll).
+    pub fn handle(
+        &mut self,
+        session: &mut Session,
+        request: &Request,
+        now_us: u64,
+        rng: &mut dyn RngSource,
+        out: &mut dyn FnMut(PeerMessage),
+    ) {
+        let now = self.observe(now_us);
+        let reply = match self.dispatch(session, request, now, rng) {
+            Ok(reply) => reply,
+            Err(error) => Reply::Error(error),
+        };
+        out(PeerMessage::Reply {
+            id: request.id,
+            reply,
+        });
+    }
+
+    /// Reports a frame that could not be read; nothing is executed.
+    pub fn link_error(&mut self, error: FrameError, out: &mut dyn FnMut(PeerMessage)) {
+        out(PeerMessage::LinkError(ErrorReply::new(
+            error.code(),
+            format_args!("{error}"),
+        )));
+    }
+
+    fn dispatch(
+        &mut self,
+        session: &mut Session,
+        request: &Request,
+        now: u64,
+        rng: &mut dyn RngSource,
+    ) -> Result<Reply, ErrorReply> {
+        let command = &request.command;
+        if !session.handshaken && !matches!(command, Command::Hello { .. }) {
+            return Err(error_reply!(
+                ErrorCode::HANDSHAKE_REQUIRED,
+                "send Hello {{ protocol_version: {PROTOCOL_VERSION} }} first"
+            ));
+        }
+        self.check_access(session, command)?;
+        if !ReplyCache::applies_to(command) {
+            return self.execute(session, request.id, command, now, rng);
+        }
+        let fingerprint = ReplyCache::fingerprint(command);
+        if let Some(reply) = self.replies.lookup(request.id, fingerprint) {
+            return Ok(reply);
+        }
+        let reply = self
+            .execute(session, request.id, command, now, rng)
+            .unwrap_or_else(Reply::Error);
+        self.replies.remember(request.id, fingerprint, &reply);
+        Ok(reply)
+    }
+
+    fn check_access(&self, session: &Session, command: &Command) -> Result<(), ErrorReply> {
+        match (command.access(), session.link()) {
+            (Access::Open, _) | (_, LinkKind::Serial) => Ok(()),
+            (Access::SerialOnly, LinkKind::Network) => Err(error_reply!(
+                ErrorCode::SERIAL_ONLY,
+                "{} is accepted on the USB serial link only",
+                name(command)
+            )),
+            (Access::Control, LinkKind::Network) if self.key.is_none() => Err(no_key()),
+            (Access::Control, LinkKind::Network) if !self.is_authenticated(session) => {
+                Err(error_reply!(
+                    ErrorCode::UNAUTHORIZED,
+                    "{} needs an authenticated session: AuthChallenge, then AuthResponse",
+                    name(command)
+                ))
+            }
+            (Access::Control, LinkKind::Network) => Ok(()),
+        }
+    }
+
+    fn execute(
+        &mut self,
+        session: &mut Session,
+        id: RequestId,
+        command: &Command,
+        now: u64,
+        rng: &mut dyn RngSource,
+    ) -> Result<Reply, ErrorReply> {
+        match command {
+            Command::Hello { protocol_version } => self.hello(session, *protocol_version),
+            Command::Status => Ok(Reply::Status(self.status(session, now))),
+            Command::MoveTo { targets } => self.start_move(id, targets, false, now),
+            Command::MoveBy { deltas } => self.start_move(id, deltas, true, now),
+            Command::Stop => {
+                self.stop_motion(now);
+                Ok(Reply::Ok)
+            }
+            Command::EmergencyStop => {
+                self.emergency_stop();
+                Ok(Reply::Ok)
+            }
+            Command::SetPosition { axis, position } => self.set_position(*axis, *position),
+            Command::GetConfig { axis } => {
+                self.axis_index(*axis, false)?;
+                let config = self.axes.get(usize::from(*axis)).map(|a| a.config);
+                config
+                    .map(Reply::Config)
+                    .ok_or_else(|| internal("axis vanished"))
+            }
+            Command::SetConfig { axis, config } => self.set_config(*axis, config),
+            Command::SaveConfig => {
+                for axis in self.axes.iter_mut() {
+                    axis.saved = axis.config;
+                }
+                self.save("configuration")
+            }
+            Command::ProvisionWifi { ssid, passphrase } => {
+                self.wifi = Some(WifiCredentials {
+                    ssid: ssid.clone(),
+                    passphrase: passphrase.clone(),
+                });
+                self.save("Wi-Fi credentials")
+            }
+            Command::SetKey { key } => {
+                self.key = Some(*key);
+                self.key_epoch = self.key_epoch.wrapping_add(1);
+                self.save("access key")
+            }
+            Command::AuthChallenge => self.challenge(session, rng),
+            Command::AuthResponse { tag } => self.authenticate(session, tag),
+        }
+    }
+
+    fn hello(&self, session: &mut Session, version: u16) -> Result<Reply, ErrorReply> {
+        if version != PROTOCOL_VERSION {
+            session.handshaken = false;
+            return Err(error_reply!(
+                ErrorCode::VERSION_MISMATCH,
+                "peer speaks protocol {PROTOCOL_VERSION}, client sent {version}"
+            ));
+        }
+        session.handshaken = true;
+        Ok(Reply::Hello(Identity {
+            protocol_version: PROTOCOL_VERSION,
+            firmware_version: truncated(self.info.firmware_version),
+            board: truncated(self.info.board),
+            board_id: self.info.board_id,
+            axes: u8::try_from(self.axes.len()).unwrap_or(u8::MAX),
+            capabilities: Capabilities(self.info.capabilities),
+        }))
+    }
+
+    fn challenge(
+        &self,
+        session: &mut Session,
+        rng: &mut dyn RngSource,
+    ) -> Result<Reply, ErrorReply> {
+        if self.key.is_none() {
+            return Err(no_key());
+        }
+        let mut nonce = [0u8; NONCE_LEN];
+        rng.fill(&mut nonce);
+        session.nonce = Some(nonce);
+        Ok(Reply::Challenge { nonce })
+    }
+
+    fn authenticate(
+        &self,
+        session: &mut Session,
+        tag: &[u8; KEY_LEN],
+    ) -> Result<Reply, ErrorReply> {
+        let Some(key) = self.key else {
+            return Err(no_key());
+        };
+        // A nonce answers one response, right or wrong.
+        let Some(nonce) = session.nonce.take() else {
+            return Err(error_reply!(
+                ErrorCode::AUTH_FAILED,
+                "no challenge outstanding: send AuthChallenge first"
+            ));
+        };
+        if verify_tag(&key, &nonce, tag) {
+            session.authenticated = Some(self.key_epoch);
+            Ok(Reply::Ok)
+        } else {
+            session.authenticated = None;
+            Err(error_reply!(
+                ErrorCode::AUTH_FAILED,
+                "challenge response does not verify (wrong key?)"
+            ))
+        }
+    }
+
+    /// Checks that `axis` exists (and, when `idle`, takes no part in any move).
+    fn axis_index(&self, axis: u8, idle: bool) -> Result<usize, ErrorReply> {
+        let index = usize::from(axis);
+        if index >= self.axes.len() {
+            return Err(unknown_axis(axis, self.axes.len()));
+        }
+        if idle && self.axis_busy(axis) {
+            return Err(error_reply!(
+                ErrorCode::BUSY,
+                "axis {axis} is moving: Stop it or wait for MoveFinished"
+            ));
+        }
+        Ok(index)
+    }
+
+    fn start_move(
+        &mut self,
+        id: RequestId,
+        values: &[AxisValue],
+        relative: bool,
+        now: u64,
+    ) -> Result<Reply, ErrorReply> {
+        // Where the running motion would come to rest if told to stop now.
+        let mut braking = self.active.clone();
+        if let Some(mv) = braking.as_mut() {
+            mv.stop(now);
+        }
+        let rest = self.rest_state(braking.as_ref());
+        let mut plans: heapless::Vec<AxisPlan, MAX_AXES> = heapless::Vec::new();
+        for value in values {
+            let index = self.axis_index(value.axis, false)?;
+            if plans.iter().any(|p| p.axis == value.axis) {
+                return Err(error_reply!(
+                    ErrorCode::MALFORMED,
+                    "axis {} is listed twice",
+                    value.axis
+                ));
+            }
+            let (Some(axis), Some(rest)) = (self.axes.get(index), rest.get(index)) else {
+                return Err(internal("axis vanished"));
+            };
+            let limits = axis.config.limits;
+            let target = if relative {
+                i64::from(rest.position) + i64::from(value.steps)
+            } else {
+                i64::from(value.steps)
+            };
+            let target = i32::try_from(target)
+                .ok()
+                .filter(|&t| limits.contains(t))
+                .ok_or_else(|| {
+                    error_reply!(
+                        ErrorCode::OUT_OF_LIMITS,
+                        "axis {}: target {target} outside soft limits {}..={}",
+                        value.axis,
+                        limits.min,
+                        limits.max
+                    )
+                })?;
+            let plan = AxisPlan {
+                axis: value.axis,
+                target,
+                path: plan_path(rest.gear, rest.position, target, &axis.config),
+                max_speed: axis.config.max_speed,
+                acceleration: axis.config.acceleration,
+            };
+            plans.push(plan).map_err(|_| internal("too many axes"))?;
+        }
+
+        // Accepted: replace whatever was running or waiting.
+        if let Some(waiting) = self.pending.take() {
+            self.queue(self.move_finished(waiting.request(), MoveOutcome::Stopped));
+        }
+        self.active = braking;
+        // (A move that already ran out but was not yet polled ends in the past.)
+        let start = self.active.as_ref().map_or(now, Move::end_us).max(now);
+        let planned = Move::plan(id, start, &plans);
+        let duration_us = planned.end_us().saturating_sub(now);
+        if self.active.is_some() {
+            self.pending = Some(planned);
+        } else {
+            self.active = Some(planned);
+        }
+        self.emergency = false;
+        for axis in self.axes.iter_mut() {
+            axis.faults.0 &= !Faults::EMERGENCY_STOP;
+        }
+        Ok(Reply::MoveStarted {
+            duration_ms: u32::try_from(duration_us.div_ceil(1000)).unwrap_or(u32::MAX),
+        })
+    }
+
+    fn stop_motion(&mut self, now: u64) {
+        if let Some(waiting) = self.pending.take() {
+            self.queue(self.move_finished(waiting.request(), MoveOutcome::Stopped));
+        }
+        if let Some(mv) = self.active.as_mut() {
+            mv.stop(now);
+        }
+    }
+
+    /// Stops every axis where it is, releases the coils (at the next poll, which is due at
+    /// once) and latches the emergency state until the next accepted move.
+    fn emergency_stop(&mut self) {
+        self.emergency = true;
+        if let Some(mv) = self.active.take() {
+            for index in mv.stepping_axes() {
+                if let Some(axis) = self.axes.get_mut(usize::from(index)) {
+                    axis.faults.0 |= Faults::EMERGENCY_STOP;
+                    let faults = axis.faults;
+                    self.queue(Notification::Fault {
+                        axis: index,
+                        faults,
+                    });
+                }
+            }
+            self.queue(self.move_finished(mv.request(), MoveOutcome::EmergencyStopped));
+        }
+        if let Some(waiting) = self.pending.take() {
+            self.queue(self.move_finished(waiting.request(), MoveOutcome::EmergencyStopped));
+        }
+        for axis in self.axes.iter_mut().filter(|a| a.powered) {
+            axis.cut_pending = true;
+            axis.power_down_at = None;
+        }
+        self.persist_soon();
+    }
+
+    fn set_position(&mut self, axis: u8, position: i32) -> Result<Reply, ErrorReply> {
+        let index = self.axis_index(axis, true)?;
+        let state = self
+            .axes
+            .get_mut(index)
+            .ok_or_else(|| internal("axis vanished"))?;
+        let limits = state.config.limits;
+        if !limits.contains(position) {
+            return Err(error_reply!(
+                ErrorCode::OUT_OF_LIMITS,
+                "axis {axis}: position {position} outside soft limits {}..={}",
+                limits.min,
+                limits.max
+            ));
+        }
+        state.position = position;
+        state.faults.0 &= !Faults::POSITION_LOST;
+        self.save("position")
+    }
+
+    fn set_config(&mut self, axis: u8, config: &AxisConfig) -> Result<Reply, ErrorReply> {
+        let index = self.axis_index(axis, true)?;
+        validate(axis, config, Capabilities(self.info.capabilities))?;
+        self.axes
+            .get_mut(index)
+            .ok_or_else(|| internal("axis vanished"))?
+            .set_config(*config);
+        Ok(Reply::Ok)
+    }
+
+    /// Writes the record now; `what` names what was changed (it stays in force even if
+    /// the write fails).
+    fn save(&mut self, what: &str) -> Result<Reply, ErrorReply> {
+        self.persist().map(|()| Reply::Ok).map_err(|error| {
+            error_reply!(
+                ErrorCode::STORAGE,
+                "{what} applied but not saved: storage {error:?}"
+            )
+        })
+    }
+}
+
+fn name(command: &Command) -> &'static str {
+    match command {
+        Command::Hello { .. } => "Hello",
+        Command::Status => "Status",
+        Command::MoveTo { .. } => "MoveTo",
+        Command::MoveBy { .. } => "MoveBy",
+        Command::Stop => "Stop",
+        Command::EmergencyStop => "EmergencyStop",
+        Command::SetPosition { .. } => "SetPosition",
+        Command::GetConfig { .. } => "GetConfig",
+        Command::SetConfig { .. } => "SetConfig",
+        Command::SaveConfig => "SaveConfig",
+        Command::ProvisionWifi { .. } => "ProvisionWifi",
+        Command::SetKey { .. } => "SetKey",
+        Command::AuthChallenge => "AuthChallenge",
+        Command::AuthResponse { .. } => "AuthResponse",
+    }
+}
+
+fn unknown_axis(axis: u8, axes: usize) -> ErrorReply {
+    error_reply!(
+        ErrorCode::UNKNOWN_AXIS,
+        "axis {axis} does not exist (this peer has {axes} axes)"
+    )
+}
+
+fn no_key() -> ErrorReply {
+    error_reply!(
+        ErrorCode::NO_KEY,
+        "no key: provision one over USB serial with `optalign provision --serial PATH --key ...`"
+    )
+}
+
+fn internal(what: &str) -> ErrorReply {
+    error_reply!(ErrorCode::INTERNAL, "internal: {what}")
+}
+
+/// `text` cut to what fits.
+fn truncated<const N: usize>(text: &str) -> String<N> {
+    let mut out = String::new();
+    for c in text.chars() {
+        if out.push(c).is_err() {
+            break;
+        }
+    }
+    out
+}

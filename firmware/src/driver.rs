@@ -1,0 +1,50 @@
+//! The interface to the motor drivers, and the half-step coil sequence.
+
+/// Physical sense of rotation of a motor (after the axis's `invert` is applied).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum StepDirection {
+    Forward,
+    Backward,
+}
+
+/// What the core asks of the hardware (or of a simulation).
+///
+/// `motor_steps` is the axis's physical step counter *after* the step: it moves by +1 for
+/// every `Forward` step and -1 for every `Backward` one, so a ULN2003 driver energises
+/// [`half_step_coils`]`(motor_steps)` and a STEP/DIR driver sets DIR and pulses STEP.
+/// It is the counter the coils see, so it runs opposite to the logical motor counter
+/// of an inverted axis.
+pub trait StepDriver {
+    /// Makes one step.
+    fn step(&mut self, axis: u8, direction: StepDirection, motor_steps: i32);
+    /// Energises (`on`: the coil pattern of `motor_steps`) or releases the axis's coils.
+    fn set_power(&mut self, axis: u8, on: bool, motor_steps: i32);
+}
+
+/// 8-phase half-step sequence of a 28BYJ-48 through a ULN2003; bit 0 is IN1 (blue),
+/// bit 3 is IN4 (orange).
+const HALF_STEP: [u8; 8] = [
+    0b0001, 0b0011, 0b0010, 0b0110, 0b0100, 0b1100, 0b1000, 0b1001,
+];
+
+/// The 4-bit coil pattern (IN1 = bit 0 .. IN4 = bit 3) for a motor step counter.
+pub fn half_step_coils(motor_steps: i32) -> u8 {
+    // rem_euclid(8) is always in 0..8.
+    HALF_STEP[motor_steps.rem_euclid(8) as usize]
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn neighbouring_phases_differ_in_one_coil() {
+        for steps in -20..20 {
+            let change = half_step_coils(steps) ^ half_step_coils(steps + 1);
+            assert_eq!(change.count_ones(), 1, "phase {steps}");
+            assert!(half_step_coils(steps) != 0);
+        }
+        assert_eq!(half_step_coils(i32::MIN), half_step_coils(0));
+        assert_eq!(half_step_coils(i32::MAX), half_step_coils(7));
+    }
+}

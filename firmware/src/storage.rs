@@ -1,0 +1,135 @@
+//! Persistent storage of fixed-size slots, and an in-memory implementation.
+//!
+//! The record journal (see [`crate::record`]) uses two slots of at least
+//! [`RECORD_LEN`] bytes each. On flash a slot is one erase
+//! sector; `write` programs into an erased slot.
+
+use crate::record::RECORD_LEN;
+
+/// Why a storage operation failed.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum StorageError {
+    /// The slot number or length is outside the device.
+    OutOfRange,
+    /// The device reported a failure.
+    Device,
+    /// The record did not serialise into a slot (a bug if it ever appears).
+    Encoding,
+}
+
+/// Two (or more) fixed-size slots of non-volatile memory.
+pub trait Storage {
+    /// Bytes per slot.
+    const SLOT_SIZE: usize;
+    /// Reads the first `buf.len()` bytes of `slot`.
+    fn read(&mut self, slot: u8, buf: &mut [u8]) -> Result<(), StorageError>;
+    /// Erases `slot` (to 0xFF).
+    fn erase(&mut self, slot: u8) -> Result<(), StorageError>;
+    /// Programs `data` at the start of the erased `slot`.
+    fn write(&mut self, slot: u8, data: &[u8]) -> Result<(), StorageError>;
+}
+
+/// Two slots in RAM: for tests and the simulated peer, which saves [`Self::as_bytes`] to a
+/// file and restores it with [`Self::from_bytes`]. It can fail on demand and simulate a
+/// power loss in the middle of a write.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct RamStorage {
+    bytes: [u8; 2 * RECORD_LEN],
+    tear_after: Option<usize>,
+    failing: bool,
+    writes: u32,
+}
+
+impl Default for RamStorage {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl RamStorage {
+    /// Both slots erased, as on a fresh board.
+    pub fn new() -> Self {
+        Self {
+            bytes: [0xFF; 2 * RECORD_LEN],
+            tear_after: None,
+            failing: false,
+            writes: 0,
+        }
+    }
+
+    /// Storage holding `bytes` (as saved from [`Self::as_bytes`]); missing bytes are erased,
+    /// extra bytes ignored.
+    pub fn from_bytes(bytes: &[u8]) -> Self {
+        let mut storage = Self::new();
+        let len = bytes.len().min(storage.bytes.len());
+        storage.bytes[..len].copy_from_slice(&bytes[..len]);
+        storage
+    }
+
+    /// The raw contents of both slots.
+    pub fn as_bytes(&self) -> &[u8] {
+        &self.bytes
+    }
+
+    /// The raw contents, writable (to corrupt a record in a test).
+    pub fn as_bytes_mut(&mut self) -> &mut [u8] {
+        &mut self.bytes
+    }
+
+    /// The next write stores only its first `bytes` bytes, as if power failed there.
+    pub fn tear_next_write(&mut self, bytes: usize) {
+        self.tear_after = Some(bytes);
+    }
+
+    /// Makes every erase and write fail (or succeed again).
+    pub fn set_failing(&mut self, failing: bool) {
+        self.failing = failing;
+    }
+
+    /// Completed (or torn) writes so far.
+    pub fn writes(&self) -> u32 {
+        self.writes
+    }
+
+    fn slot(&mut self, slot: u8) -> Result<&mut [u8], StorageError> {
+        let start = usize::from(slot) * RECORD_LEN;
+        self.bytes
+            .get_mut(start..start + RECORD_LEN)
+            .ok_or(StorageError::OutOfRange)
+    }
+}
+
+impl Storage for RamStorage {
+    const SLOT_SIZE: usize = RECORD_LEN;
+
+    fn read(&mut self, slot: u8, buf: &mut [u8]) -> Result<(), StorageError> {
+        let src = self
+            .slot(slot)?
+            .get(..buf.len())
+            .ok_or(StorageError::OutOfRange)?;
+        buf.copy_from_slice(src);
+        Ok(())
+    }
+
+    fn erase(&mut self, slot: u8) -> Result<(), StorageError> {
+        if self.failing {
+            return Err(StorageError::Device);
+        }
+        self.slot(slot)?.fill(0xFF);
+        Ok(())
+    }
+
+    fn write(&mut self, slot: u8, data: &[u8]) -> Result<(), StorageError> {
+        if self.failing {
+            return Err(StorageError::Device);
+        }
+        let keep = self.tear_after.take().unwrap_or(data.len()).min(data.len());
+        let dst = self
+            .slot(slot)?
+            .get_mut(..data.len())
+            .ok_or(StorageError::OutOfRange)?;
+        dst[..keep].copy_from_slice(&data[..keep]);
+        self.writes += 1;
+        Ok(())
+    }
+}

@@ -1,0 +1,8 @@
+//! Whole-controller tests against the simulated mount.
+
+mod backlash;
+mod dispatch;
+mod motion;
+mod persistence;
+mod rig;
+mod robustness;
