@@ -1,0 +1,103 @@
+//! Range checks that build [`ScenarioError::Invalid`] with the field's dotted path.
+
+use super::ScenarioError;
+
+/// Largest image side accepted, in pixels (keeps per-row noise counters collision-free).
+pub(crate) const MAX_IMAGE_SIDE_PX: u32 = 16384;
+
+/// Checks fields of one table, prefixing each field name with the table path.
+pub(crate) struct Check<'a> {
+    prefix: &'a str,
+}
+
+impl<'a> Check<'a> {
+    pub(crate) fn new(prefix: &'a str) -> Self {
+        Self { prefix }
+    }
+
+    fn fail(&self, field: &str, reason: String) -> ScenarioError {
+        ScenarioError::Invalid {
+            field: format!("{}.{}", self.prefix, field),
+            reason,
+        }
+    }
+
+    /// The value must be finite and strictly greater than `min`.
+    pub(crate) fn gt(&self, field: &str, value: f64, min: f64) -> Result<(), ScenarioError> {
+        if value.is_finite() && value > min {
+            Ok(())
+        } else {
+            Err(self.fail(field, format!("must be > {min}, got {value}")))
+        }
+    }
+
+    /// The value must be finite and at least `min`.
+    pub(crate) fn ge(&self, field: &str, value: f64, min: f64) -> Result<(), ScenarioError> {
+        if value.is_finite() && value >= min {
+            Ok(())
+        } else {
+            Err(self.fail(field, format!("must be >= {min}, got {value}")))
+        }
+    }
+
+    /// The value must be finite and within `min..=max`.
+    pub(crate) fn within(
+        &self,
+        field: &str,
+        value: f64,
+        min: f64,
+        max: f64,
+    ) -> Result<(), ScenarioError> {
+        if value.is_finite() && (min..=max).contains(&value) {
+            Ok(())
+        } else {
+            Err(self.fail(field, format!("must be within {min}..={max}, got {value}")))
+        }
+    }
+
+    /// The value must be finite (any sign).
+    pub(crate) fn finite(&self, field: &str, value: f64) -> Result<(), ScenarioError> {
+        if value.is_finite() {
+            Ok(())
+        } else {
+            Err(self.fail(field, format!("must be finite, got {value}")))
+        }
+    }
+
+    /// An image side in pixels: at least 2 and at most [`MAX_IMAGE_SIDE_PX`].
+    pub(crate) fn image_side(&self, field: &str, value: u32) -> Result<(), ScenarioError> {
+        if (2..=MAX_IMAGE_SIDE_PX).contains(&value) {
+            Ok(())
+        } else {
+            Err(self.fail(
+                field,
+                format!("must be within 2..={MAX_IMAGE_SIDE_PX}, got {value}"),
+            ))
+        }
+    }
+
+    /// An offset range in motor steps: the hidden offset is drawn from `-value..=value`.
+    pub(crate) fn offset_range(&self, field: &str, value: i32) -> Result<(), ScenarioError> {
+        if value >= 0 {
+            Ok(())
+        } else {
+            Err(self.fail(field, format!("must be >= 0, got {value}")))
+        }
+    }
+
+    /// Every entry of a 2x2 matrix must be finite and the matrix invertible, so that every
+    /// beam position can be reached by some motor setting.
+    pub(crate) fn matrix(&self, field: &str, m: &[[f64; 2]; 2]) -> Result<(), ScenarioError> {
+        for (r, row) in m.iter().enumerate() {
+            for (c, v) in row.iter().enumerate() {
+                self.finite(&format!("{field}[{r}][{c}]"), *v)?;
+            }
+        }
+        let det = m[0][0] * m[1][1] - m[0][1] * m[1][0];
+        if det.abs() > 1e-12 {
+            Ok(())
+        } else {
+            Err(self.fail(field, format!("must be invertible, got determinant {det}")))
+        }
+    }
+}
