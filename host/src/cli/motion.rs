@@ -1,0 +1,64 @@
+//! `optalign move` and `optalign stop`.
+
+use anyhow::bail;
+use clap::Args;
+use optalign_protocol::{AxisValue, Command, MoveOutcome};
+
+use super::axes::{check_axes, parse_axis_value};
+use super::connect::ControllerArgs;
+
+#[derive(Debug, Args)]
+pub struct MoveArgs {
+    #[command(flatten)]
+    controller: ControllerArgs,
+    /// Targets as AXIS=STEPS (absolute logical steps, or deltas with --relative).
+    #[arg(required = true, value_name = "AXIS=STEPS", value_parser = parse_axis_value, allow_negative_numbers = true)]
+    targets: Vec<AxisValue>,
+    /// Treat the values as relative moves.
+    #[arg(long)]
+    relative: bool,
+}
+
+pub async fn run_move(args: MoveArgs) -> anyhow::Result<()> {
+    let client = args.controller.connect().await?;
+    check_axes(&args.targets, client.identity().axes)?;
+    let report = if args.relative {
+        client.move_by(&args.targets).await?
+    } else {
+        client.move_to(&args.targets).await?
+    };
+    let positions: Vec<String> = report
+        .positions
+        .iter()
+        .enumerate()
+        .map(|(axis, position)| format!("{axis}={position}"))
+        .collect();
+    match report.outcome {
+        MoveOutcome::Completed => {
+            println!("move completed: {}", positions.join(" "));
+            Ok(())
+        }
+        other => bail!("move ended early ({other:?}) at {}", positions.join(" ")),
+    }
+}
+
+#[derive(Debug, Args)]
+pub struct StopArgs {
+    #[command(flatten)]
+    controller: ControllerArgs,
+    /// Stop at once and switch the coils off instead of decelerating.
+    #[arg(long)]
+    emergency: bool,
+}
+
+pub async fn run_stop(args: StopArgs) -> anyhow::Result<()> {
+    let client = args.controller.connect().await?;
+    if args.emergency {
+        client.command_ok(Command::EmergencyStop).await?;
+        println!("emergency stop: all axes stopped, coils off; the next move clears the latch");
+    } else {
+        client.command_ok(Command::Stop).await?;
+        println!("stop: all axes decelerating to rest");
+    }
+    Ok(())
+}

@@ -1,0 +1,82 @@
+//! `optalign peer`: run a simulated motor controller until interrupted.
+
+use std::net::SocketAddr;
+use std::path::PathBuf;
+
+use clap::Args;
+
+use crate::peer::{MechanicsOptions, PeerOptions, SimPeer, TimeMode};
+
+#[derive(Debug, Args)]
+pub struct PeerArgs {
+    /// Address to serve the protocol on (loopback by default; a LAN address exposes it).
+    #[arg(long, default_value = "127.0.0.1:7878", value_name = "HOST:PORT")]
+    listen: SocketAddr,
+    /// Number of axes.
+    #[arg(long, default_value_t = 4, value_parser = clap::value_parser!(u8).range(1..=8))]
+    axes: u8,
+    /// True mechanical backlash (dead band) of every simulated mount, in steps.
+    #[arg(long, default_value_t = 0)]
+    backlash: u32,
+    /// Probability that a step is lost by the mount (0..1).
+    #[arg(long, default_value_t = 0.0)]
+    lost_steps: f64,
+    /// Also serve the trusted serial link on a pseudo-terminal and print its path.
+    #[arg(long)]
+    pty: bool,
+    /// Access key to provision at start (as `optalign provision --key` would over serial).
+    #[arg(long, env = "OPTALIGN_PEER_KEY", hide_env_values = true)]
+    key: Option<String>,
+    /// File that keeps the controller's flash record and the mount state across restarts.
+    #[arg(long, value_name = "FILE")]
+    state: Option<PathBuf>,
+    /// Simulated time runs this many times faster than real time; 0 completes moves instantly.
+    #[arg(long, default_value_t = 1.0)]
+    time_scale: f64,
+}
+
+pub async fn run(args: PeerArgs) -> anyhow::Result<()> {
+    anyhow::ensure!(
+        (0.0..=1.0).contains(&args.lost_steps),
+        "--lost-steps must be a probability in 0..1, got {}",
+        args.lost_steps
+    );
+    anyhow::ensure!(
+        args.time_scale >= 0.0 && args.time_scale.is_finite(),
+        "--time-scale must be >= 0, got {}",
+        args.time_scale
+    );
+    let options = PeerOptions {
+        axes: args.axes,
+        mechanics: MechanicsOptions {
+            backlash: args.backlash,
+            lost_step_probability: args.lost_steps,
+            ..MechanicsOptions::default()
+        },
+        key: args.key.clone(),
+        state_file: args.state.clone(),
+        time: if args.time_scale == 0.0 {
+            TimeMode::Instant
+        } else {
+            TimeMode::Scaled(args.time_scale)
+        },
+    };
+    let peer = SimPeer::start(&options)?;
+    let bound = peer.listen_tcp(args.listen).await?;
+    println!(
+        "simulated controller: {} axes, true backlash {} steps",
+        args.axes, args.backlash
+    );
+    println!("listening on tcp://{bound}");
+    if args.pty {
+        println!("serial link on serial://{}", peer.open_pty()?);
+    }
+    if args.key.is_none() {
+        println!(
+            "no access key: motion over TCP is refused until one is provisioned (--key, or `optalign provision` over the pty)"
+        );
+    }
+    tokio::signal::ctrl_c().await?;
+    peer.shutdown();
+    Ok(())
+}

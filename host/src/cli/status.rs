@@ -1,0 +1,112 @@
+//! `optalign status`: identity and per-axis state, as a table or JSON.
+
+use clap::Args;
+use optalign_protocol::{AxisStatus, Direction, Faults, Identity, Slack, Status};
+use serde_json::json;
+
+use super::connect::ControllerArgs;
+
+#[derive(Debug, Args)]
+pub struct StatusArgs {
+    #[command(flatten)]
+    controller: ControllerArgs,
+    /// Print machine-readable JSON instead of a table.
+    #[arg(long)]
+    json: bool,
+}
+
+pub async fn run(args: StatusArgs) -> anyhow::Result<()> {
+    let client = args.controller.connect().await?;
+    let status = client.status().await?;
+    let identity = client.identity();
+    if args.json {
+        let value = json!({ "controller": client.endpoint().to_string(), "identity": identity, "status": status });
+        println!("{}", serde_json::to_string_pretty(&value)?);
+    } else {
+        print!(
+            "{}",
+            render_table(&client.endpoint().to_string(), &identity, &status)
+        );
+    }
+    Ok(())
+}
+
+fn render_table(endpoint: &str, identity: &Identity, status: &Status) -> String {
+    let session = status.session;
+    let mut out = format!(
+        "{endpoint}: {} firmware {}, protocol {}, {} axes, board id {:016x}\n",
+        identity.board,
+        identity.firmware_version,
+        identity.protocol_version,
+        identity.axes,
+        identity.board_id
+    );
+    out += &format!(
+        "link: {}, authenticated: {}, key provisioned: {}{}\n",
+        if session.trusted_link {
+            "serial (trusted)"
+        } else {
+            "network"
+        },
+        yes_no(session.authenticated),
+        yes_no(session.key_provisioned),
+        if status.emergency_stopped {
+            ", EMERGENCY STOP latched"
+        } else {
+            ""
+        },
+    );
+    out += "axis  position     motor    target  moving  dir  slack  limits                 coils  faults\n";
+    for (index, axis) in status.axes.iter().enumerate() {
+        out += &axis_row(index, axis);
+    }
+    out
+}
+
+fn axis_row(index: usize, axis: &AxisStatus) -> String {
+    let direction = match axis.direction {
+        Direction::Idle => "-",
+        Direction::Positive => "+",
+        Direction::Negative => "-",
+    };
+    let slack = match axis.slack {
+        Slack::Unknown => "?",
+        Slack::TakenUpPositive => "+",
+        Slack::TakenUpNegative => "-",
+    };
+    format!(
+        "{index:>4}  {:>8}  {:>8}  {:>8}  {:>6}  {:>3}  {:>5}  [{:>9}, {:>9}]  {:>5}  {}\n",
+        axis.position,
+        axis.motor_steps,
+        axis.target,
+        yes_no(axis.moving),
+        direction,
+        slack,
+        axis.limits.min,
+        axis.limits.max,
+        if axis.powered { "on" } else { "off" },
+        describe_faults(axis.faults),
+    )
+}
+
+fn yes_no(value: bool) -> &'static str {
+    if value { "yes" } else { "no" }
+}
+
+/// Names the fault bits, or "none".
+pub fn describe_faults(faults: Faults) -> String {
+    let names: Vec<&str> = [
+        (Faults::EMERGENCY_STOP, "emergency-stop"),
+        (Faults::DRIVER, "driver"),
+        (Faults::POSITION_LOST, "position-lost"),
+    ]
+    .into_iter()
+    .filter(|(bit, _)| faults.has(*bit))
+    .map(|(_, name)| name)
+    .collect();
+    if names.is_empty() {
+        "none".into()
+    } else {
+        names.join(",")
+    }
+}

@@ -1,0 +1,608 @@
+//! The typed, async controller client.
+//!
+//! One [`Client`] owns one logical connection to a controller. It performs the version
+//! handshake and (with a key, on network links) the challenge-response, sends requests
+//! with timeouts, retransmits a request with the *same* id when no answer comes (the
+//! controller's reply cache makes that safe), reconnects transparently when the link
+//! drops, and turns the controller's unsolicited notifications into a stream. Moves return
+//! once the motion has finished, like a status future in Bluesky/Ophyd.
+
+use std::collections::HashMap;
+use std::sync::atomic::{AtomicU32, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+use optalign_protocol::auth::{self, Key};
+use optalign_protocol::{
+    AxisConfig, AxisValue, Command, ErrorCode, ErrorReply, FrameError, Identity, MAX_AXES,
+    MoveOutcome, Notification, PROTOCOL_VERSION, PeerMessage, Reply, Request, RequestId, Status,
+};
+use tokio::io::{AsyncWriteExt, WriteHalf};
+use tokio::sync::{broadcast, oneshot};
+use tokio::task::JoinHandle;
+
+use super::endpoint::Endpoint;
+use super::framed::{FrameReader, write_frame};
+use super::transport::Transport;
+
+/// How a client behaves on a slow or failing link.
+#[derive(Clone, Debug)]
+pub struct ClientOptions {
+    /// The access key; needed for motion and configuration over the network.
+    pub key: Option<Key>,
+    /// How long to wait for one reply before retransmitting.
+    pub request_timeout: Duration,
+    /// How many times a request is sent (first try included) before giving up.
+    pub attempts: u32,
+    /// How long to wait for a TCP connection to open.
+    pub connect_timeout: Duration,
+}
+
+impl Default for ClientOptions {
+    fn default() -> Self {
+        Self {
+            key: None,
+            request_timeout: Duration::from_millis(1500),
+            attempts: 4,
+            connect_timeout: Duration::from_secs(3),
+        }
+    }
+}
+
+/// Why a controller operation failed.
+#[derive(Debug, thiserror::Error)]
+pub enum ClientError {
+    #[error("cannot reach controller at {endpoint}: {source}")]
+    Connect {
+        endpoint: Endpoint,
+        source: std::io::Error,
+    },
+    #[error(
+        "protocol version mismatch: controller at {endpoint} speaks version {theirs}, this optalign speaks {ours}; update the firmware or the host so they match"
+    )]
+    VersionMismatch {
+        endpoint: Endpoint,
+        ours: u16,
+        theirs: u16,
+    },
+    #[error("controller refused the request: {0}")]
+    Rejected(ErrorReply),
+    #[error("no answer from controller at {endpoint} after {attempts} attempts")]
+    Timeout { endpoint: Endpoint, attempts: u32 },
+    #[error("controller at {endpoint} sent an unexpected reply to {request}: {reply:?}")]
+    UnexpectedReply {
+        endpoint: Endpoint,
+        request: &'static str,
+        reply: Box<Reply>,
+    },
+    #[error("link to controller at {endpoint} failed: {source}")]
+    Io {
+        endpoint: Endpoint,
+        source: std::io::Error,
+    },
+    #[error("motion did not finish on controller at {endpoint} within {waited:?}")]
+    MoveTimeout {
+        endpoint: Endpoint,
+        waited: Duration,
+    },
+}
+
+impl ClientError {
+    /// The controller's error code, when the controller refused the request.
+    pub fn code(&self) -> Option<ErrorCode> {
+        match self {
+            Self::Rejected(reply) => Some(reply.code),
+            _ => None,
+        }
+    }
+}
+
+/// Something the controller reported without being asked just now.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Event {
+    Notification(Notification),
+    /// The controller could not read one of our frames.
+    LinkError(ErrorReply),
+    /// The controller sent bytes that are not a valid frame.
+    Garbage(FrameError),
+    /// The link dropped; the client reconnects on the next request.
+    Disconnected,
+}
+
+/// How a move ended.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct MoveReport {
+    pub outcome: MoveOutcome,
+    /// Logical positions of all axes when the motion ended.
+    pub positions: Vec<i32>,
+    /// The travel time the controller planned, ms.
+    pub duration_ms: u32,
+}
+
+type Pending = Arc<Mutex<HashMap<u32, oneshot::Sender<Reply>>>>;
+
+struct Connection {
+    writer: WriteHalf<Transport>,
+    reader: JoinHandle<()>,
+}
+
+impl Drop for Connection {
+    fn drop(&mut self) {
+        self.reader.abort();
+    }
+}
+
+/// A connection to one controller.
+pub struct Client {
+    endpoint: Endpoint,
+    options: ClientOptions,
+    connection: tokio::sync::Mutex<Option<Connection>>,
+    pending: Pending,
+    events: broadcast::Sender<Event>,
+    next_id: AtomicU32,
+    identity: Mutex<Option<Identity>>,
+}
+
+impl Client {
+    /// Connects, performs the handshake and, with a key on a network link, authenticates.
+    pub async fn connect(endpoint: Endpoint, options: ClientOptions) -> Result<Self, ClientError> {
+        let (events, _) = broadcast::channel(256);
+        let client = Self {
+            endpoint,
+            options,
+            connection: tokio::sync::Mutex::new(None),
+            pending: Arc::default(),
+            events,
+            next_id: AtomicU32::new(rand::random()),
+            identity: Mutex::new(None),
+        };
+        {
+            let mut connection = client.connection.lock().await;
+            client.open(&mut connection).await?;
+        }
+        Ok(client)
+    }
+
+    pub fn endpoint(&self) -> &Endpoint {
+        &self.endpoint
+    }
+
+    /// Who the controller said it is at the last handshake.
+    pub fn identity(&self) -> Identity {
+        self.identity
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .clone()
+            .expect("a connected client has completed the handshake")
+    }
+
+    /// Notifications and link events from now on.
+    pub fn events(&self) -> broadcast::Receiver<Event> {
+        self.events.subscribe()
+    }
+
+    /// Allocates a fresh request id.
+    pub fn next_request_id(&self) -> RequestId {
+        RequestId(self.next_id.fetch_add(1, Ordering::Relaxed))
+    }
+
+    /// Sends a command and waits for its reply; an error reply becomes `Rejected`.
+    pub async fn request(&self, command: Command) -> Result<Reply, ClientError> {
+        let id = self.next_request_id();
+        self.request_with_id(id, command).await
+    }
+
+    /// Sends a command under a given id, retransmitting with the same id on timeout or
+    /// after a reconnect, so the controller executes it at most once.
+    pub async fn request_with_id(
+        &self,
+        id: RequestId,
+        command: Command,
+    ) -> Result<Reply, ClientError> {
+        let request = Request { id, command };
+        let mut last_error = None;
+        for _ in 0..self.options.attempts.max(1) {
+            match self.exchange(&request).await {
+                Ok(Reply::Error(error)) => return Err(ClientError::Rejected(error)),
+                Ok(reply) => return Ok(reply),
+                Err(error @ (ClientError::VersionMismatch { .. } | ClientError::Rejected(_))) => {
+                    return Err(error);
+                }
+                Err(error) => {
+                    tracing::debug!(?id, %error, "retrying request");
+                    last_error = Some(error);
+                }
+            }
+        }
+        Err(match last_error {
+            Some(ClientError::Connect { endpoint, source }) => {
+                ClientError::Connect { endpoint, source }
+            }
+            _ => ClientError::Timeout {
+                endpoint: self.endpoint.clone(),
+                attempts: self.options.attempts.max(1),
+            },
+        })
+    }
+
+    /// One attempt: (re)connect if needed, send, wait for the reply or the timeout.
+    async fn exchange(&self, request: &Request) -> Result<Reply, ClientError> {
+        let (sender, receiver) = oneshot::channel();
+        self.pending
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .insert(request.id.0, sender);
+        let sent = self.send(request).await;
+        let outcome = match sent {
+            Ok(()) => match tokio::time::timeout(self.options.request_timeout, receiver).await {
+                Ok(Ok(reply)) => Ok(reply),
+                Ok(Err(_)) => Err(ClientError::Io {
+                    endpoint: self.endpoint.clone(),
+                    source: std::io::ErrorKind::ConnectionReset.into(),
+                }),
+                Err(_) => Err(ClientError::Timeout {
+                    endpoint: self.endpoint.clone(),
+                    attempts: 1,
+                }),
+            },
+            Err(error) => Err(error),
+        };
+        self.pending
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .remove(&request.id.0);
+        outcome
+    }
+
+    async fn send(&self, request: &Request) -> Result<(), ClientError> {
+        let mut connection = self.connection.lock().await;
+        let alive = connection.as_ref().is_some_and(|c| !c.reader.is_finished());
+        if !alive {
+            *connection = None;
+            self.open(&mut connection).await?;
+        }
+        let Some(open) = connection.as_mut() else {
+            unreachable!("open() either connects or returns an error")
+        };
+        if let Err(source) = write_frame(&mut open.writer, request).await {
+            *connection = None;
+            return Err(ClientError::Io {
+                endpoint: self.endpoint.clone(),
+                source,
+            });
+        }
+        Ok(())
+    }
+
+    /// Opens the transport, starts the reader, and runs handshake and authentication.
+    async fn open(&self, slot: &mut Option<Connection>) -> Result<(), ClientError> {
+        let transport = Transport::open(&self.endpoint, self.options.connect_timeout)
+            .await
+            .map_err(|source| ClientError::Connect {
+                endpoint: self.endpoint.clone(),
+                source,
+            })?;
+        let (read, mut writer) = tokio::io::split(transport);
+        // A lone delimiter flushes any half frame a previous client left at the peer.
+        writer
+            .write_all(&[0])
+            .await
+            .map_err(|source| ClientError::Io {
+                endpoint: self.endpoint.clone(),
+                source,
+            })?;
+        let reader = tokio::spawn(read_loop(
+            FrameReader::new(read),
+            self.pending.clone(),
+            self.events.clone(),
+        ));
+        *slot = Some(Connection { writer, reader });
+        let identity = self.handshake(slot).await?;
+        *self.identity.lock().unwrap_or_else(|e| e.into_inner()) = Some(identity);
+        if let (Some(key), false) = (self.options.key, self.endpoint.is_serial()) {
+            self.authenticate(slot, &key).await?;
+        }
+        Ok(())
+    }
+
+    /// A request on a connection being set up (no reconnect, no retransmit).
+    async fn setup_request(
+        &self,
+        slot: &mut Option<Connection>,
+        command: Command,
+    ) -> Result<Reply, ClientError> {
+        let request = Request {
+            id: self.next_request_id(),
+            command,
+        };
+        let (sender, receiver) = oneshot::channel();
+        self.pending
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .insert(request.id.0, sender);
+        let connection = slot.as_mut().expect("setup runs on an open connection");
+        let io_error = |source| ClientError::Io {
+            endpoint: self.endpoint.clone(),
+            source,
+        };
+        write_frame(&mut connection.writer, &request)
+            .await
+            .map_err(io_error)?;
+        let reply = tokio::time::timeout(self.options.request_timeout, receiver).await;
+        self.pending
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .remove(&request.id.0);
+        match reply {
+            Ok(Ok(reply)) => Ok(reply),
+            Ok(Err(_)) => Err(io_error(std::io::ErrorKind::ConnectionReset.into())),
+            Err(_) => Err(ClientError::Timeout {
+                endpoint: self.endpoint.clone(),
+                attempts: 1,
+            }),
+        }
+    }
+
+    async fn handshake(&self, slot: &mut Option<Connection>) -> Result<Identity, ClientError> {
+        let reply = self
+            .setup_request(
+                slot,
+                Command::Hello {
+                    protocol_version: PROTOCOL_VERSION,
+                },
+            )
+            .await;
+        match reply {
+            Ok(Reply::Hello(identity)) if identity.protocol_version == PROTOCOL_VERSION => {
+                Ok(identity)
+            }
+            Ok(Reply::Hello(identity)) => Err(ClientError::VersionMismatch {
+                endpoint: self.endpoint.clone(),
+                ours: PROTOCOL_VERSION,
+                theirs: identity.protocol_version,
+            }),
+            Ok(Reply::Error(error)) if error.code == ErrorCode::VERSION_MISMATCH => {
+                Err(ClientError::VersionMismatch {
+                    endpoint: self.endpoint.clone(),
+                    ours: PROTOCOL_VERSION,
+                    theirs: peer_version_from(&error).unwrap_or(0),
+                })
+            }
+            Ok(Reply::Error(error)) => Err(ClientError::Rejected(error)),
+            Ok(other) => Err(self.unexpected("Hello", other)),
+            Err(error) => Err(error),
+        }
+    }
+
+    async fn authenticate(
+        &self,
+        slot: &mut Option<Connection>,
+        key: &Key,
+    ) -> Result<(), ClientError> {
+        let nonce = match self.setup_request(slot, Command::AuthChallenge).await? {
+            Reply::Challenge { nonce } => nonce,
+            Reply::Error(error) => return Err(ClientError::Rejected(error)),
+            other => return Err(self.unexpected("AuthChallenge", other)),
+        };
+        let tag = auth::challenge_tag(key, &nonce);
+        match self
+            .setup_request(slot, Command::AuthResponse { tag })
+            .await?
+        {
+            Reply::Ok => Ok(()),
+            Reply::Error(error) => Err(ClientError::Rejected(error)),
+            other => Err(self.unexpected("AuthResponse", other)),
+        }
+    }
+
+    fn unexpected(&self, request: &'static str, reply: Reply) -> ClientError {
+        ClientError::UnexpectedReply {
+            endpoint: self.endpoint.clone(),
+            request,
+            reply: Box::new(reply),
+        }
+    }
+
+    pub async fn status(&self) -> Result<Status, ClientError> {
+        match self.request(Command::Status).await? {
+            Reply::Status(status) => Ok(status),
+            other => Err(self.unexpected("Status", other)),
+        }
+    }
+
+    pub async fn get_config(&self, axis: u8) -> Result<AxisConfig, ClientError> {
+        match self.request(Command::GetConfig { axis }).await? {
+            Reply::Config(config) => Ok(config),
+            other => Err(self.unexpected("GetConfig", other)),
+        }
+    }
+
+    /// Sends a command whose only good answer is `Ok`.
+    pub async fn command_ok(&self, command: Command) -> Result<(), ClientError> {
+        let name = command_name(&command);
+        match self.request(command).await? {
+            Reply::Ok => Ok(()),
+            other => Err(self.unexpected(name, other)),
+        }
+    }
+
+    /// Moves axes to absolute targets; returns when the motion has ended.
+    pub async fn move_to(&self, targets: &[AxisValue]) -> Result<MoveReport, ClientError> {
+        self.run_move(Command::MoveTo {
+            targets: to_axis_list(targets),
+        })
+        .await
+    }
+
+    /// Moves axes by relative amounts; returns when the motion has ended.
+    pub async fn move_by(&self, deltas: &[AxisValue]) -> Result<MoveReport, ClientError> {
+        self.run_move(Command::MoveBy {
+            deltas: to_axis_list(deltas),
+        })
+        .await
+    }
+
+    /// Starts a move under a caller-chosen id and waits for it (used to show that a
+    /// retransmitted move executes once).
+    pub async fn run_move_with_id(
+        &self,
+        id: RequestId,
+        command: Command,
+    ) -> Result<MoveReport, ClientError> {
+        let mut events = self.events();
+        let duration_ms = match self.request_with_id(id, command).await? {
+            Reply::MoveStarted { duration_ms } => duration_ms,
+            other => return Err(self.unexpected("Move", other)),
+        };
+        self.await_motion(id, duration_ms, &mut events).await
+    }
+
+    async fn run_move(&self, command: Command) -> Result<MoveReport, ClientError> {
+        let id = self.next_request_id();
+        self.run_move_with_id(id, command).await
+    }
+
+    /// Waits for the notification that ends motion `id`; if it does not come in time
+    /// (for example the link dropped and the notification went to the old connection),
+    /// polls the status until every axis is idle.
+    async fn await_motion(
+        &self,
+        id: RequestId,
+        duration_ms: u32,
+        events: &mut broadcast::Receiver<Event>,
+    ) -> Result<MoveReport, ClientError> {
+        let expected = Duration::from_millis(u64::from(duration_ms));
+        let grace = expected / 2 + Duration::from_millis(500);
+        let deadline = tokio::time::Instant::now() + expected + grace;
+        loop {
+            let event = tokio::select! {
+                event = events.recv() => event,
+                _ = tokio::time::sleep_until(deadline) => break,
+            };
+            match event {
+                Ok(Event::Notification(Notification::MoveFinished {
+                    request,
+                    outcome,
+                    positions,
+                })) if request == id => {
+                    return Ok(MoveReport {
+                        outcome,
+                        positions: positions.to_vec(),
+                        duration_ms,
+                    });
+                }
+                Ok(Event::Disconnected) | Err(broadcast::error::RecvError::Closed) => break,
+                _ => {}
+            }
+        }
+        self.poll_until_idle(duration_ms, expected * 2 + Duration::from_secs(5))
+            .await
+    }
+
+    async fn poll_until_idle(
+        &self,
+        duration_ms: u32,
+        limit: Duration,
+    ) -> Result<MoveReport, ClientError> {
+        let started = tokio::time::Instant::now();
+        loop {
+            let status = self.status().await?;
+            if status.axes.iter().all(|axis| !axis.moving) {
+                let reached = status.axes.iter().all(|axis| axis.position == axis.target);
+                let outcome = match (status.emergency_stopped, reached) {
+                    (true, _) => MoveOutcome::EmergencyStopped,
+                    (false, true) => MoveOutcome::Completed,
+                    (false, false) => MoveOutcome::Stopped,
+                };
+                return Ok(MoveReport {
+                    outcome,
+                    positions: status.axes.iter().map(|axis| axis.position).collect(),
+                    duration_ms,
+                });
+            }
+            if started.elapsed() > limit {
+                return Err(ClientError::MoveTimeout {
+                    endpoint: self.endpoint.clone(),
+                    waited: limit,
+                });
+            }
+            tokio::time::sleep(Duration::from_millis(50)).await;
+        }
+    }
+
+    /// Drops the link now (the next request reconnects).
+    pub async fn disconnect(&self) {
+        *self.connection.lock().await = None;
+    }
+}
+
+fn to_axis_list(values: &[AxisValue]) -> heapless::Vec<AxisValue, MAX_AXES> {
+    values.iter().copied().take(MAX_AXES).collect()
+}
+
+fn command_name(command: &Command) -> &'static str {
+    match command {
+        Command::Hello { .. } => "Hello",
+        Command::Status => "Status",
+        Command::MoveTo { .. } => "MoveTo",
+        Command::MoveBy { .. } => "MoveBy",
+        Command::Stop => "Stop",
+        Command::EmergencyStop => "EmergencyStop",
+        Command::SetPosition { .. } => "SetPosition",
+        Command::GetConfig { .. } => "GetConfig",
+        Command::SetConfig { .. } => "SetConfig",
+        Command::SaveConfig => "SaveConfig",
+        Command::ProvisionWifi { .. } => "ProvisionWifi",
+        Command::SetKey { .. } => "SetKey",
+        Command::AuthChallenge => "AuthChallenge",
+        Command::AuthResponse { .. } => "AuthResponse",
+    }
+}
+
+/// Reads the peer's version out of a version-mismatch reason ("peer speaks protocol N").
+fn peer_version_from(error: &ErrorReply) -> Option<u16> {
+    let rest = error.reason.split("speaks protocol ").nth(1)?;
+    rest.split(|c: char| !c.is_ascii_digit())
+        .next()?
+        .parse()
+        .ok()
+}
+
+async fn read_loop(
+    mut reader: FrameReader<tokio::io::ReadHalf<Transport>, PeerMessage>,
+    pending: Pending,
+    events: broadcast::Sender<Event>,
+) {
+    loop {
+        match reader.next().await {
+            Ok(Some(Ok(PeerMessage::Reply { id, reply }))) => {
+                let waiter = pending
+                    .lock()
+                    .unwrap_or_else(|e| e.into_inner())
+                    .remove(&id.0);
+                match waiter {
+                    Some(waiter) => {
+                        let _ = waiter.send(reply);
+                    }
+                    None => tracing::debug!(?id, "reply to a request nobody waits for"),
+                }
+            }
+            Ok(Some(Ok(PeerMessage::Notify(notification)))) => {
+                let _ = events.send(Event::Notification(notification));
+            }
+            Ok(Some(Ok(PeerMessage::LinkError(error)))) => {
+                tracing::warn!(%error, "controller could not read a frame");
+                let _ = events.send(Event::LinkError(error));
+            }
+            Ok(Some(Err(error))) => {
+                tracing::warn!(%error, "controller sent an invalid frame");
+                let _ = events.send(Event::Garbage(error));
+            }
+            Ok(None) | Err(_) => {
+                pending.lock().unwrap_or_else(|e| e.into_inner()).clear();
+                let _ = events.send(Event::Disconnected);
+                return;
+            }
+        }
+    }
+}

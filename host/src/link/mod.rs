@@ -1,0 +1,10 @@
+//! The host side of the controller link: addresses, byte transports, framing on async
+//! streams and the typed client.
+
+pub mod client;
+pub mod endpoint;
+pub mod framed;
+pub mod transport;
+
+pub use client::{Client, ClientError, ClientOptions, Event, MoveReport};
+pub use endpoint::{Endpoint, EndpointError};

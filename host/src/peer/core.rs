@@ -1,0 +1,212 @@
+//! The peer's state machine: firmware controller + simulated mounts + clock, with the
+//! state file kept in step with the controller's persisted record.
+
+use std::path::PathBuf;
+
+use anyhow::Context;
+use optalign_firmware::sim::SimDriver;
+use optalign_firmware::{BoardInfo, Controller, LinkKind, RamStorage, RngSource, Session};
+use optalign_protocol::{Capabilities, Command, FrameError, PeerMessage, Request, RequestId, auth};
+
+use super::clock::{SimClock, TimeMode};
+use super::mechanics::MechanicsOptions;
+use super::state_file::StateFile;
+
+/// How a simulated peer is set up.
+#[derive(Clone, Debug)]
+pub struct PeerOptions {
+    /// Number of axes (1..=8).
+    pub axes: u8,
+    pub mechanics: MechanicsOptions,
+    /// Access key passphrase, provisioned at start-up as if over the serial link.
+    pub key: Option<String>,
+    /// Where the controller's persisted record and the true mount state survive restarts.
+    pub state_file: Option<PathBuf>,
+    pub time: TimeMode,
+}
+
+impl Default for PeerOptions {
+    fn default() -> Self {
+        Self {
+            axes: 4,
+            mechanics: MechanicsOptions::default(),
+            key: None,
+            state_file: None,
+            time: TimeMode::Scaled(1.0),
+        }
+    }
+}
+
+/// Randomness for challenge nonces, from the operating system.
+struct OsRandom;
+
+impl RngSource for OsRandom {
+    fn fill(&mut self, buf: &mut [u8]) {
+        rand::fill(buf);
+    }
+}
+
+/// Everything one simulated controller is.
+pub struct PeerCore {
+    controller: Controller<RamStorage>,
+    mounts: SimDriver,
+    clock: SimClock,
+    state_file: Option<StateFile>,
+    axes: u8,
+}
+
+impl PeerCore {
+    pub fn new(options: &PeerOptions) -> anyhow::Result<Self> {
+        anyhow::ensure!(
+            (1..=optalign_protocol::MAX_AXES as u8).contains(&options.axes),
+            "--axes must be 1..={}, got {}",
+            optalign_protocol::MAX_AXES,
+            options.axes
+        );
+        let state_file = options.state_file.clone().map(StateFile::new);
+        let saved = match &state_file {
+            Some(file) => file
+                .load()
+                .with_context(|| format!("reading peer state {}", file.path().display()))?,
+            None => None,
+        };
+        let clock = SimClock::new(options.time);
+        let (mounts, storage) = match saved {
+            Some(saved) => (
+                SimDriver::new(saved.mounts),
+                RamStorage::from_bytes(&saved.flash),
+            ),
+            None => (options.mechanics.driver(options.axes), RamStorage::new()),
+        };
+        let info = BoardInfo {
+            board: "optalign-sim-peer",
+            firmware_version: env!("CARGO_PKG_VERSION"),
+            board_id: 0x5157_0000_0000_0000 | u64::from(options.axes),
+            axes: options.axes,
+            capabilities: Capabilities::UNIPOLAR_HALF_STEP
+                | Capabilities::STEP_DIR
+                | Capabilities::PERSISTENCE
+                | Capabilities::SERIAL
+                | Capabilities::SIMULATED,
+        };
+        let controller = Controller::new(info, storage, clock.now_us());
+        let mut core = Self {
+            controller,
+            mounts,
+            clock,
+            state_file,
+            axes: options.axes,
+        };
+        if let Some(passphrase) = &options.key {
+            core.provision_key(passphrase)?;
+        }
+        Ok(core)
+    }
+
+    /// Stores the access key through the serial-only command, as `optalign provision` does.
+    fn provision_key(&mut self, passphrase: &str) -> anyhow::Result<()> {
+        let mut session = Session::new(LinkKind::Serial);
+        let hello = Request {
+            id: RequestId(0),
+            command: Command::Hello {
+                protocol_version: optalign_protocol::PROTOCOL_VERSION,
+            },
+        };
+        self.handle(&mut session, &hello);
+        let set_key = Request {
+            id: RequestId(rand::random()),
+            command: Command::SetKey {
+                key: auth::derive_key(passphrase),
+            },
+        };
+        for message in self.handle(&mut session, &set_key) {
+            if let PeerMessage::Reply {
+                reply: optalign_protocol::Reply::Error(error),
+                ..
+            } = message
+            {
+                anyhow::bail!("provisioning the peer's key failed: {error}");
+            }
+        }
+        Ok(())
+    }
+
+    /// Executes one request from `session`; returns the replies for that session.
+    pub fn handle(&mut self, session: &mut Session, request: &Request) -> Vec<PeerMessage> {
+        let mut out = Vec::new();
+        let now = self.clock.now_us();
+        self.controller
+            .handle(session, request, now, &mut OsRandom, &mut |m| out.push(m));
+        self.save_if_changed();
+        out
+    }
+
+    /// Answers an unreadable frame from `session`.
+    pub fn link_error(&mut self, error: FrameError) -> Vec<PeerMessage> {
+        let mut out = Vec::new();
+        self.controller.link_error(error, &mut |m| out.push(m));
+        out
+    }
+
+    /// Runs every step due now; returns notifications for all sessions and the next
+    /// deadline (simulated µs) at which `poll` must run again.
+    pub fn poll(&mut self) -> (Vec<PeerMessage>, Option<u64>) {
+        let mut out = Vec::new();
+        let now = self.clock.now_us();
+        self.controller
+            .poll(now, &mut self.mounts, &mut |m| out.push(m));
+        self.save_if_changed();
+        (out, self.controller.next_deadline_us())
+    }
+
+    /// In instant mode: runs simulated time forward until no motion is pending.
+    pub fn settle(&mut self) -> Vec<PeerMessage> {
+        let mut out = Vec::new();
+        loop {
+            let (mut notes, next) = self.poll();
+            out.append(&mut notes);
+            match next {
+                Some(deadline)
+                    if self.controller.is_moving() && self.clock.mode() == TimeMode::Instant =>
+                {
+                    self.clock.jump_to(deadline)
+                }
+                _ => return out,
+            }
+        }
+    }
+
+    pub fn clock(&self) -> &SimClock {
+        &self.clock
+    }
+
+    pub fn clock_mut(&mut self) -> &mut SimClock {
+        &mut self.clock
+    }
+
+    pub fn is_moving(&self) -> bool {
+        self.controller.is_moving()
+    }
+
+    /// True shaft positions of the mounts, in steps: hidden truth for scenes and tests.
+    pub fn shaft_positions(&self) -> Vec<i32> {
+        (0..self.axes)
+            .filter_map(|axis| self.mounts.mount(axis))
+            .map(|m| m.shaft_position())
+            .collect()
+    }
+
+    /// Whether the coils of `axis` are energised (seen from the mount side).
+    pub fn coils_powered(&self, axis: u8) -> bool {
+        self.mounts.is_powered(axis)
+    }
+
+    fn save_if_changed(&mut self) {
+        if let Some(file) = &mut self.state_file
+            && let Err(error) =
+                file.save_if_changed(self.controller.storage(), &self.mounts, self.axes)
+        {
+            tracing::error!(%error, path = %file.path().display(), "cannot write peer state file");
+        }
+    }
+}

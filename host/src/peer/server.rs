@@ -1,0 +1,197 @@
+//! Serving a [`PeerCore`] over TCP and a pseudo-terminal, with the motion loop that keeps
+//! stepping the mounts on the simulated clock.
+
+use std::net::SocketAddr;
+use std::sync::{Arc, Mutex, MutexGuard};
+
+use optalign_firmware::{LinkKind, Session};
+use optalign_protocol::{PeerMessage, Request};
+use tokio::io::{AsyncRead, AsyncWrite};
+use tokio::net::TcpListener;
+use tokio::sync::{Notify, broadcast, mpsc};
+use tokio::task::JoinHandle;
+
+use super::clock::TimeMode;
+use super::core::{PeerCore, PeerOptions};
+use crate::link::framed::{FrameReader, write_frame};
+
+/// A running simulated controller.
+pub struct SimPeer {
+    core: Arc<Mutex<PeerCore>>,
+    wake: Arc<Notify>,
+    notifications: broadcast::Sender<PeerMessage>,
+    tasks: Mutex<Vec<JoinHandle<()>>>,
+    /// Keeps the terminal side of the pseudo-terminal open so clients can come and go.
+    pty_terminal: Mutex<Option<tokio_serial::SerialStream>>,
+}
+
+impl SimPeer {
+    /// Builds the peer and starts its motion loop (it serves nothing until told to).
+    pub fn start(options: &PeerOptions) -> anyhow::Result<Arc<Self>> {
+        let core = PeerCore::new(options)?;
+        let (notifications, _) = broadcast::channel(256);
+        let peer = Arc::new(Self {
+            core: Arc::new(Mutex::new(core)),
+            wake: Arc::new(Notify::new()),
+            notifications,
+            tasks: Mutex::new(Vec::new()),
+            pty_terminal: Mutex::new(None),
+        });
+        let motion = tokio::spawn(motion_loop(
+            peer.core.clone(),
+            peer.wake.clone(),
+            peer.notifications.clone(),
+        ));
+        peer.track(motion);
+        Ok(peer)
+    }
+
+    fn track(&self, task: JoinHandle<()>) {
+        lock(&self.tasks).push(task);
+    }
+
+    /// Locks the state (for in-process rigs and tests that read hidden truth).
+    pub fn core(&self) -> MutexGuard<'_, PeerCore> {
+        lock(&self.core)
+    }
+
+    /// True shaft positions of the mounts: hidden truth.
+    pub fn shaft_positions(&self) -> Vec<i32> {
+        self.core().shaft_positions()
+    }
+
+    /// Accepts network clients on `address`; returns the bound address.
+    pub async fn listen_tcp(self: &Arc<Self>, address: SocketAddr) -> anyhow::Result<SocketAddr> {
+        let listener = TcpListener::bind(address)
+            .await
+            .map_err(|e| anyhow::anyhow!("cannot listen on {address}: {e}"))?;
+        let bound = listener.local_addr()?;
+        let peer = self.clone();
+        let accept = tokio::spawn(async move {
+            loop {
+                match listener.accept().await {
+                    Ok((stream, remote)) => {
+                        let _ = stream.set_nodelay(true);
+                        tracing::info!(%remote, "client connected");
+                        let peer = peer.clone();
+                        tokio::spawn(async move {
+                            peer.serve(stream, LinkKind::Network).await;
+                            tracing::info!(%remote, "client disconnected");
+                        });
+                    }
+                    Err(error) => tracing::warn!(%error, "accept failed"),
+                }
+            }
+        });
+        self.track(accept);
+        Ok(bound)
+    }
+
+    /// Serves the trusted serial link on a new pseudo-terminal; returns the path clients
+    /// open (`serial://PATH`).
+    pub fn open_pty(self: &Arc<Self>) -> anyhow::Result<String> {
+        let (controller_side, terminal_side) = tokio_serial::SerialStream::pair()
+            .map_err(|e| anyhow::anyhow!("cannot create a pseudo-terminal: {e}"))?;
+        let path = tokio_serial::SerialPort::name(&terminal_side)
+            .ok_or_else(|| anyhow::anyhow!("the pseudo-terminal has no path"))?;
+        *lock(&self.pty_terminal) = Some(terminal_side);
+        let peer = self.clone();
+        let serve =
+            tokio::spawn(async move { peer.serve(controller_side, LinkKind::Serial).await });
+        self.track(serve);
+        Ok(path)
+    }
+
+    /// Serves one byte stream until it ends.
+    pub async fn serve<S>(self: &Arc<Self>, stream: S, link: LinkKind)
+    where
+        S: AsyncRead + AsyncWrite + Send + 'static,
+    {
+        let (read, mut write) = tokio::io::split(stream);
+        let (replies, mut outgoing) = mpsc::unbounded_channel::<PeerMessage>();
+        let mut notifications = self.notifications.subscribe();
+        let writer = tokio::spawn(async move {
+            loop {
+                let message = tokio::select! {
+                    reply = outgoing.recv() => match reply {
+                        Some(reply) => reply,
+                        None => return,
+                    },
+                    note = notifications.recv() => match note {
+                        Ok(note) => note,
+                        Err(broadcast::error::RecvError::Lagged(_)) => continue,
+                        Err(broadcast::error::RecvError::Closed) => return,
+                    },
+                };
+                if write_frame(&mut write, &message).await.is_err() {
+                    return;
+                }
+            }
+        });
+        let mut reader = FrameReader::<_, Request>::new(read);
+        let mut session = Session::new(link);
+        while let Ok(Some(frame)) = reader.next().await {
+            let answers = match frame {
+                Ok(request) => self.core().handle(&mut session, &request),
+                Err(error) => self.core().link_error(error),
+            };
+            self.wake.notify_one();
+            for answer in answers {
+                let _ = replies.send(answer);
+            }
+        }
+        drop(replies);
+        let _ = writer.await;
+    }
+
+    /// Stops serving and stepping.
+    pub fn shutdown(&self) {
+        for task in lock(&self.tasks).drain(..) {
+            task.abort();
+        }
+    }
+}
+
+impl Drop for SimPeer {
+    fn drop(&mut self) {
+        self.shutdown();
+    }
+}
+
+fn lock<T>(mutex: &Mutex<T>) -> MutexGuard<'_, T> {
+    mutex
+        .lock()
+        .unwrap_or_else(|poisoned| poisoned.into_inner())
+}
+
+/// Steps the mounts whenever a step is due, and broadcasts what the controller reports.
+async fn motion_loop(
+    core: Arc<Mutex<PeerCore>>,
+    wake: Arc<Notify>,
+    notifications: broadcast::Sender<PeerMessage>,
+) {
+    loop {
+        let (notes, deadline, wait) = {
+            let mut core = lock(&core);
+            let (notes, deadline) = core.poll();
+            let wait = deadline.map(|d| core.clock().wall_time_until(d));
+            if let (Some(deadline), TimeMode::Instant) = (deadline, core.clock().mode()) {
+                core.clock_mut().jump_to(deadline);
+            }
+            (notes, deadline, wait)
+        };
+        for note in notes {
+            let _ = notifications.send(note);
+        }
+        match (deadline, wait) {
+            (None, _) | (_, None) => wake.notified().await,
+            (Some(_), Some(wait)) if wait.is_zero() => tokio::task::yield_now().await,
+            (Some(_), Some(wait)) => {
+                tokio::select! {
+                    _ = tokio::time::sleep(wait) => {},
+                    _ = wake.notified() => {},
+                }
+            }
+        }
+    }
+}

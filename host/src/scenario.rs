@@ -1,0 +1,193 @@
+//! Scenario files: everything a simulated run depends on, in one TOML file with documented
+//! defaults. `[michelson]`, `[cavity]` and `[relay]` configure the scenes (see
+//! `optalign-optics`), `[mount]` the simulated mechanics and the firmware's compensation,
+//! `[timing]` the modelled wall-clock, `[tasks.*]` bounds and budgets.
+
+use std::path::Path;
+
+use anyhow::Context;
+use optalign_optics::{
+    Scenario as SceneParams,
+    scenario::{CavityParams, MichelsonParams, RelayParams},
+};
+use optalign_protocol::BacklashMode;
+use serde::{Deserialize, Serialize};
+
+use crate::task::TaskLimits;
+
+/// The simulated mounts and how the firmware is configured for them (`[mount]`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct MountParams {
+    /// True gear/screw dead band of every axis, steps. Default 30 (a 28BYJ-48 gearbox).
+    pub backlash_steps: u32,
+    /// Backlash the firmware compensates, steps. Default 30 (calibrated to the true value).
+    pub compensation_steps: u16,
+    /// Compensation mode: "off", "one_sided" or "take_up". Default "one_sided".
+    pub compensation_mode: CompensationMode,
+    /// Probability that the mount loses any one step. Default 0.
+    pub lost_step_probability: f64,
+    /// Cruise speed, steps/s. Default 800.
+    pub max_speed: u32,
+    /// Acceleration, steps/s². Default 2000.
+    pub acceleration: u32,
+}
+
+impl Default for MountParams {
+    fn default() -> Self {
+        Self {
+            backlash_steps: 30,
+            compensation_steps: 30,
+            compensation_mode: CompensationMode::OneSided,
+            lost_step_probability: 0.0,
+            max_speed: 800,
+            acceleration: 2000,
+        }
+    }
+}
+
+/// Backlash compensation mode, as spelt in scenario files.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum CompensationMode {
+    Off,
+    OneSided,
+    TakeUp,
+}
+
+impl From<CompensationMode> for BacklashMode {
+    fn from(mode: CompensationMode) -> Self {
+        match mode {
+            CompensationMode::Off => BacklashMode::Off,
+            CompensationMode::OneSided => BacklashMode::OneSided,
+            CompensationMode::TakeUp => BacklashMode::TakeUp,
+        }
+    }
+}
+
+/// The modelled wall-clock time of a run (`[timing]`), for speed-vs-accuracy charts.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct TimingParams {
+    /// Camera settling time after a motor move, s. Default 0.5.
+    pub settle_after_move_s: f64,
+    /// Time the robot arm takes to move the camera to another station, s. Default 8.
+    pub camera_move_s: f64,
+    /// Time to grab one frame, s. Default 0.1.
+    pub frame_s: f64,
+}
+
+impl Default for TimingParams {
+    fn default() -> Self {
+        Self {
+            settle_after_move_s: 0.5,
+            camera_move_s: 8.0,
+            frame_s: 0.1,
+        }
+    }
+}
+
+/// A whole scenario file.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct ScenarioFile {
+    pub michelson: MichelsonParams,
+    pub cavity: CavityParams,
+    pub relay: RelayParams,
+    pub mount: MountParams,
+    pub timing: TimingParams,
+    pub tasks: TaskLimits,
+}
+
+impl ScenarioFile {
+    /// Reads and validates a scenario file; errors name the file, the field and the reason.
+    pub fn load(path: &Path) -> anyhow::Result<Self> {
+        let text = std::fs::read_to_string(path)
+            .with_context(|| format!("cannot read scenario {}", path.display()))?;
+        Self::parse(&text).with_context(|| format!("invalid scenario {}", path.display()))
+    }
+
+    /// Loads `path`, or the defaults when none is given.
+    pub fn load_or_default(path: Option<&Path>) -> anyhow::Result<Self> {
+        path.map_or_else(|| Ok(Self::default()), Self::load)
+    }
+
+    pub fn parse(text: &str) -> anyhow::Result<Self> {
+        let scenario: Self =
+            toml::from_str(text).map_err(|e| anyhow::anyhow!("{}", e.to_string().trim()))?;
+        scenario.validate()?;
+        Ok(scenario)
+    }
+
+    pub fn validate(&self) -> anyhow::Result<()> {
+        self.scenes().validate()?;
+        self.tasks.validate().map_err(anyhow::Error::msg)?;
+        let mount = &self.mount;
+        anyhow::ensure!(
+            (0.0..=1.0).contains(&mount.lost_step_probability),
+            "mount.lost_step_probability: must be within 0..=1, got {}",
+            mount.lost_step_probability
+        );
+        anyhow::ensure!(mount.max_speed > 0, "mount.max_speed: must be > 0 steps/s");
+        anyhow::ensure!(
+            mount.acceleration > 0,
+            "mount.acceleration: must be > 0 steps/s²"
+        );
+        anyhow::ensure!(
+            mount.backlash_steps <= 2000,
+            "mount.backlash_steps: must be <= 2000, got {}",
+            mount.backlash_steps
+        );
+        let timing = &self.timing;
+        for (name, value) in [
+            ("timing.settle_after_move_s", timing.settle_after_move_s),
+            ("timing.camera_move_s", timing.camera_move_s),
+            ("timing.frame_s", timing.frame_s),
+        ] {
+            anyhow::ensure!(
+                value.is_finite() && value >= 0.0,
+                "{name}: must be a time >= 0 s, got {value}"
+            );
+        }
+        Ok(())
+    }
+
+    /// The scene tables as the optics crate takes them.
+    pub fn scenes(&self) -> SceneParams {
+        SceneParams {
+            michelson: self.michelson.clone(),
+            cavity: self.cavity.clone(),
+            relay: self.relay.clone(),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn defaults_parse_from_an_empty_file() {
+        assert_eq!(ScenarioFile::parse("").unwrap(), ScenarioFile::default());
+    }
+
+    #[test]
+    fn unknown_fields_and_bad_values_are_named() {
+        let error = ScenarioFile::parse("[mount]\nbacklash = 3\n")
+            .unwrap_err()
+            .to_string();
+        assert!(error.contains("backlash"), "{error}");
+        let error = ScenarioFile::parse("[mount]\nlost_step_probability = 2.0\n")
+            .unwrap_err()
+            .to_string();
+        assert!(error.contains("mount.lost_step_probability"), "{error}");
+        let error = ScenarioFile::parse("[tasks.relay]\nbudget = 0\n")
+            .unwrap_err()
+            .to_string();
+        assert!(error.contains("tasks.relay.budget"), "{error}");
+        let error = ScenarioFile::parse("[timing]\ncamera_move_s = -1\n")
+            .unwrap_err()
+            .to_string();
+        assert!(error.contains("timing.camera_move_s"), "{error}");
+    }
+}
