@@ -90,7 +90,10 @@ impl SimMotors {
                     ..ClientOptions::default()
                 };
                 let client = Client::connect(endpoint, client_options).await?;
-                Self::Peer { peer, client: Box::new(client) }
+                Self::Peer {
+                    peer,
+                    client: Box::new(client),
+                }
             }
         };
         for axis in 0..axes as u8 {

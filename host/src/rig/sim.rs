@@ -98,6 +98,23 @@ impl SimRig {
         self.motors.shafts()
     }
 
+    /// Relative moves of (axis, delta) pairs; zero deltas are skipped. Returns the travel
+    /// and settling time, s.
+    async fn move_relative(&mut self, deltas: &[(usize, i32)]) -> anyhow::Result<f64> {
+        let deltas: Vec<AxisValue> = deltas
+            .iter()
+            .filter(|(_, delta)| *delta != 0)
+            .map(|&(axis, steps)| AxisValue {
+                axis: axis as u8,
+                steps,
+            })
+            .collect();
+        if deltas.is_empty() {
+            return Ok(0.0);
+        }
+        Ok(self.motors.travel(&deltas, true).await? + self.timing.settle_after_move_s)
+    }
+
     async fn move_absolute(&mut self, command: &[i32]) -> anyhow::Result<f64> {
         let targets: Vec<AxisValue> = command
             .iter()
@@ -136,23 +153,15 @@ impl Rig for SimRig {
                 vertical,
                 horizontal,
             }) => {
-                let deltas: Vec<AxisValue> = [
+                let deltas = [
                     (axis_of(*mirror, false), *vertical),
                     (axis_of(*mirror, true), *horizontal),
-                ]
-                .into_iter()
-                .filter(|(_, delta)| *delta != 0)
-                .map(|(axis, steps)| AxisValue {
-                    axis: axis as u8,
-                    steps,
-                })
-                .collect();
-                let seconds = if deltas.is_empty() {
-                    0.0
-                } else {
-                    self.motors.travel(&deltas, true).await? + self.timing.settle_after_move_s
-                };
-                (seconds, 0.0)
+                ];
+                (self.move_relative(&deltas).await?, 0.0)
+            }
+            Action::Relay(RelayAction::TiltAll { deltas }) => {
+                let deltas: Vec<(usize, i32)> = deltas.iter().copied().enumerate().collect();
+                (self.move_relative(&deltas).await?, 0.0)
             }
             Action::Relay(RelayAction::Measure { station }) => {
                 let Scene::Relay {

@@ -12,6 +12,19 @@ pub fn axis_of(mirror: u8, horizontal: bool) -> usize {
     usize::from(mirror) * 2 + usize::from(horizontal)
 }
 
+/// `M2 vertical` for axis 2, and so on.
+pub fn axis_label(axis: usize) -> String {
+    format!(
+        "M{} {}",
+        axis / 2 + 1,
+        if axis.is_multiple_of(2) {
+            "vertical"
+        } else {
+            "horizontal"
+        }
+    )
+}
+
 /// One relay action.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "action", rename_all = "snake_case")]
@@ -22,6 +35,9 @@ pub enum RelayAction {
         vertical: i32,
         horizontal: i32,
     },
+    /// Relative tilts of all eight axes at once (axis order as in [`axis_of`]); the
+    /// numerical baselines search whole configurations this way.
+    TiltAll { deltas: [i32; 8] },
     /// Move the camera to a station (or take another image if already there).
     Measure { station: Station },
     /// Declare the relay aligned (accepted only at C8).
@@ -41,6 +57,7 @@ impl RelayAction {
                     mirror + 1
                 )
             }
+            Self::TiltAll { deltas } => format!("tilt all {deltas:?}"),
             Self::Measure { station } => format!("measure at {station}"),
             Self::Done => "done".into(),
         }
@@ -153,6 +170,26 @@ impl RelayState {
                     Err(format!("rejected, nothing moved: {}", problems.join("; ")))
                 }
             }
+            RelayAction::TiltAll { deltas } => {
+                let problems: Vec<String> = deltas
+                    .iter()
+                    .enumerate()
+                    .filter_map(|(axis, &delta)| {
+                        let (low, high) = self.allowed(limits, axis);
+                        (!(low..=high).contains(&delta)).then(|| {
+                            format!(
+                                "axis {axis} ({}) {delta:+}: allowed now [{low}, {high}]",
+                                axis_label(axis)
+                            )
+                        })
+                    })
+                    .collect();
+                if problems.is_empty() {
+                    Ok(())
+                } else {
+                    Err(format!("rejected, nothing moved: {}", problems.join("; ")))
+                }
+            }
             RelayAction::Measure { .. } => Ok(()),
             RelayAction::Done if self.station == Station::C8 => Ok(()),
             RelayAction::Done => Err(format!(
@@ -162,9 +199,22 @@ impl RelayState {
         }
     }
 
+    /// The relative tilt allowed on `axis` now: per-action and cumulative bounds combined.
+    pub fn allowed(&self, limits: &RelayLimits, axis: usize) -> (i32, i32) {
+        let total = self.cumulative[axis];
+        let low = (-limits.max_cumulative - total).max(-limits.max_step);
+        let high = (limits.max_cumulative - total).min(limits.max_step);
+        (low, high)
+    }
+
     /// Records an accepted action.
     pub fn apply(&mut self, action: &RelayAction) {
         match action {
+            RelayAction::TiltAll { deltas } => {
+                for (total, delta) in self.cumulative.iter_mut().zip(deltas) {
+                    *total += delta;
+                }
+            }
             RelayAction::Tilt {
                 mirror,
                 vertical,
