@@ -1,13 +1,10 @@
 //! `optalign run`: one alignment run of one task with one policy on a simulated rig.
 
-use std::io::BufReader;
 use std::path::PathBuf;
 
-use anyhow::bail;
 use clap::Args;
 
-use crate::policy::TaskBrief;
-use crate::policy::manual::ManualPolicy;
+use crate::policy::{PolicyOptions, TaskBrief, build_policy};
 use crate::rig::{MotorPath, SimRig};
 use crate::run::{RunOptions, run_dir, run_episode};
 use crate::scenario::ScenarioFile;
@@ -17,7 +14,7 @@ use crate::task::TaskKind;
 pub struct RunArgs {
     /// Which task.
     task: TaskKind,
-    /// Who decides: manual (you, at a prompt).
+    /// Who decides (see `optalign run --help`): manual = you, at a prompt.
     #[arg(long, default_value = "manual")]
     policy: String,
     /// Run on the simulated scene (no hardware).
@@ -44,10 +41,7 @@ pub async fn run(args: RunArgs) -> anyhow::Result<()> {
         limits: scenario.tasks.clone(),
         budget: scenario.tasks.budget(args.task),
     };
-    let mut policy = match args.policy.as_str() {
-        "manual" => ManualPolicy::new(brief, BufReader::new(std::io::stdin())),
-        other => bail!("unknown policy {other:?}: available: manual"),
-    };
+    let mut built = build_policy(&args.policy, &brief, &PolicyOptions { seed: args.seed })?;
     let out = args
         .out
         .unwrap_or_else(|| run_dir(&PathBuf::from("runs"), args.task, &args.policy, args.seed));
@@ -58,7 +52,14 @@ pub async fn run(args: RunArgs) -> anyhow::Result<()> {
         ..RunOptions::default()
     };
     eprintln!("run folder: {}", out.display());
-    let summary = run_episode(&mut rig, &mut policy, None, &scenario.tasks, &options).await?;
+    let summary = run_episode(
+        &mut rig,
+        built.policy.as_mut(),
+        built.objective.as_ref(),
+        &scenario.tasks,
+        &options,
+    )
+    .await?;
     println!(
         "{} seed {}: {} after {} evaluations, terminal error {}{}",
         summary.task,

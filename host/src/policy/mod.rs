@@ -7,6 +7,7 @@
 //! only the baselines the paper gave it to, and only through [`PrivilegedObjective`], which
 //! the run loop fills when (and only when) the policy's constructor asked for it.
 
+mod factory;
 pub mod manual;
 
 use std::path::PathBuf;
@@ -17,6 +18,8 @@ use optalign_optics::Frame;
 use serde::{Deserialize, Serialize};
 
 use crate::task::{Action, TaskKind, TaskLimits};
+
+pub use factory::{BuiltPolicy, PolicyOptions, build_policy, policy_names};
 
 /// What a policy is told before the first image.
 #[derive(Clone, Debug)]
