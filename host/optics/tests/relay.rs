@@ -236,6 +236,64 @@ fn a_clipped_beam_shows_speckle_instead_of_a_spot() {
 }
 
 #[test]
+fn a_beam_partly_off_the_sensor_shows_speckle_and_one_well_inside_a_spot() {
+    let p = quiet();
+    let scene = Relay::new(p.clone(), OFFSETS).unwrap();
+    let pose = CameraPose::nominal(Station::C1);
+    let hit_x = |shaft: &[i32; 8]| scene.truth(shaft).stations[0].offset_px.unwrap()[0];
+    // Walk M1's horizontal tilt until the beam centre sits `x_px` from the image centre.
+    let at = |x_px: f64| {
+        (0..20_000)
+            .step_by(5)
+            .map(|extra| {
+                let mut shaft = aligned();
+                shaft[1] += extra;
+                shaft
+            })
+            .min_by(|a, b| {
+                (hit_x(a).abs() - x_px)
+                    .abs()
+                    .total_cmp(&(hit_x(b).abs() - x_px).abs())
+            })
+            .unwrap()
+    };
+    let roughness = |f: &Frame, cx: u32| {
+        let mut sum = 0.0;
+        for y in 200..280 {
+            for x in cx - 15..cx + 15 {
+                sum += f64::from(f.pixel(x + 1, y).abs_diff(f.pixel(x, y)));
+            }
+        }
+        sum / 2400.0
+    };
+    // A third of the beam falls past the edge (1 mm beam radius, 3.2 mm half-width).
+    let (edge_shaft, inside_shaft) = (at(300.0), at(100.0));
+    let edge = scene.render(&edge_shaft, &pose, 0);
+    let inside = scene.render(&inside_shaft, &pose, 0);
+    let near_edge = hit_x(&edge_shaft);
+    // Sample 20 px from the beam centre towards the image centre (still on the sensor).
+    let edge_x = (320.0 + near_edge - 20.0 * near_edge.signum()) as u32;
+    let inside_x = (320.0 + hit_x(&inside_shaft)) as u32;
+    assert!(
+        mean(&inside, inside_x - 10, inside_x + 10, 230, 250) > 180.0,
+        "a clean spot well inside"
+    );
+    let (edge_core, inside_core) = (
+        mean(&edge, edge_x - 10, edge_x + 10, 230, 250),
+        mean(&inside, inside_x - 10, inside_x + 10, 230, 250),
+    );
+    assert!(
+        edge_core < 0.4 * inside_core,
+        "no bright core at the edge: beam at {near_edge} px, core {edge_core} vs {inside_core}"
+    );
+    assert!(!is_dark(&edge, &p));
+    assert!(
+        roughness(&edge, edge_x) > 3.0 * roughness(&inside, inside_x),
+        "speckle, not a cut spot"
+    );
+}
+
+#[test]
 fn camera_placement_error_shifts_the_spot_and_is_reproducible() {
     let p = quiet();
     let scene = Relay::new(p.clone(), OFFSETS).unwrap();

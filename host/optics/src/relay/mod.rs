@@ -197,7 +197,16 @@ impl Relay {
         let pitch = p.pixel_pitch_mm();
         let centre = [w as f64 / 2.0 + u / pitch[0], h as f64 / 2.0 + v / pitch[1]];
         let radius = [p.beam_radius_mm / pitch[0], p.beam_radius_mm / pitch[1]];
-        let lost = 1.0 - beam.power;
+        // Light lost upstream on a mirror edge, or falling past the sensor's edge, scatters:
+        // the more is lost, the more of what remains shows as speckle instead of a spot.
+        let sigma = p.beam_radius_mm / 2.0;
+        let half = [
+            p.camera.sensor_width_mm / 2.0,
+            p.camera.sensor_height_mm / 2.0,
+        ];
+        let on_sensor = gaussian_fraction(u, sigma, -half[0], half[0])
+            * gaussian_fraction(v, sigma, -half[1], half[1]);
+        let lost = 1.0 - beam.power * on_sensor;
         let clean = (-(lost / p.speckle.clip_tolerance).powi(2)).exp();
         let spot = Layer::new(
             centre,
