@@ -8,14 +8,15 @@
 
 use core::fmt;
 
-use crc::{CRC_32_ISCSI, Crc};
+use crc::{CRC_32_ISCSI, Crc, Table};
 use serde::Serialize;
 use serde::de::DeserializeOwned;
 
 use crate::error::ErrorCode;
 use crate::limits::{CRC_LEN, MAX_FRAME, MAX_PAYLOAD};
 
-const CRC32C: Crc<u32> = Crc::<u32>::new(&CRC_32_ISCSI);
+/// CRC-32C, slice-by-16 (a 16 KiB table in flash; several times faster than byte-wise).
+const CRC32C: Crc<u32, Table<16>> = Crc::<u32, Table<16>>::new(&CRC_32_ISCSI);
 
 /// Why a frame could not be produced or read.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -131,15 +132,32 @@ impl FrameDecoder {
         Some(decode_stuffed(&mut self.buf[..len]))
     }
 
-    /// Feeds a buffer, calling `on_frame` for every frame it completes.
+    /// Feeds a buffer, calling `on_frame` for every frame it completes. Equivalent to
+    /// [`push`](Self::push) for every byte, but copies runs of frame bytes at once.
     pub fn feed<T: DeserializeOwned>(
         &mut self,
-        bytes: &[u8],
+        mut bytes: &[u8],
         mut on_frame: impl FnMut(Result<T, FrameError>),
     ) {
-        for &byte in bytes {
-            if let Some(result) = self.push(byte) {
-                on_frame(result);
+        while !bytes.is_empty() {
+            let run = bytes.iter().position(|&b| b == 0).unwrap_or(bytes.len());
+            let (body, rest) = bytes.split_at(run);
+            let room = self.buf.len() - self.len;
+            if body.len() > room {
+                self.overflowed = true;
+                self.len = self.buf.len();
+            } else {
+                self.buf[self.len..self.len + body.len()].copy_from_slice(body);
+                self.len += body.len();
+            }
+            match rest.split_first() {
+                Some((&delimiter, tail)) => {
+                    if let Some(result) = self.push(delimiter) {
+                        on_frame(result);
+                    }
+                    bytes = tail;
+                }
+                None => bytes = rest,
             }
         }
     }

@@ -261,6 +261,14 @@ proptest! {
     }
 
     #[test]
+    fn feeding_a_buffer_equals_pushing_each_byte(bytes in prop::collection::vec(prop_oneof![Just(0u8), any::<u8>()], 0..3000)) {
+        let fed = decode_all::<Request>(&bytes);
+        let mut decoder = FrameDecoder::new();
+        let pushed: std::vec::Vec<_> = bytes.iter().filter_map(|&b| decoder.push::<Request>(b)).collect();
+        prop_assert_eq!(fed, pushed);
+    }
+
+    #[test]
     fn decoder_resynchronises_after_garbage(garbage in prop::collection::vec(any::<u8>(), 0..2000), req in request()) {
         // Garbage, then a delimiter, then a good frame: the good frame always comes out last.
         let mut stream = garbage.clone();
