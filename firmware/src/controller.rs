@@ -13,6 +13,7 @@ use optalign_protocol::{
 
 use crate::axis::Axis;
 use crate::config::{default_config, validate};
+use crate::control::ControlClaim;
 use crate::driver::StepDriver;
 use crate::gear::{Gear, Travel};
 use crate::motion::Move;
@@ -62,6 +63,8 @@ pub struct Controller<S: Storage> {
     pub(crate) replies: ReplyCache,
     outbox: Deque<Notification, OUTBOX_LEN>,
     pub(crate) emergency: bool,
+    /// Which network session controls the motors (see [`crate::control`]).
+    pub(crate) control: ControlClaim,
     boot_us: u64,
     now_us: u64,
     persist_due: bool,
@@ -109,6 +112,7 @@ impl<S: Storage> Controller<S> {
             replies: ReplyCache::new(),
             outbox: Deque::new(),
             emergency: false,
+            control: ControlClaim::default(),
             boot_us: now_us,
             now_us,
             persist_due: false,
@@ -124,6 +128,11 @@ impl<S: Storage> Controller<S> {
         &mut self.storage
     }
 
+    /// The configuration in force on `axis` (the board reads the driver kind from it).
+    pub fn axis_config(&self, axis: u8) -> Option<&AxisConfig> {
+        self.axes.get(usize::from(axis)).map(|a| &a.config)
+    }
+
     /// Whether a move is running or waiting to run.
     pub fn is_moving(&self) -> bool {
         self.active.is_some() || self.pending.is_some()
@@ -132,6 +141,11 @@ impl<S: Storage> Controller<S> {
     /// The stored Wi-Fi credentials, for the board to join its network.
     pub fn wifi(&self) -> Option<&WifiCredentials> {
         self.wifi.as_ref()
+    }
+
+    /// Whether any axis reports a fault (emergency stop latched, position lost, driver).
+    pub fn has_faults(&self) -> bool {
+        self.axes.iter().any(|a| a.faults.0 != 0)
     }
 
     /// Record writes that failed since start-up (motion goes on regardless).

@@ -2,7 +2,9 @@
 //! execution of every command.
 //!
 //! Order of checks: handshake, then access (so a session without access learns nothing
-//! from the reply memory, not even a cached reply), then the reply memory, then the command.
+//! from the reply memory, not even a cached reply), then the reply memory (so a client that
+//! reconnected gets its retransmission answered even while its old connection still holds
+//! control), then the single-controller rule (see [`crate::control`]), then the command.
 //!
 //! A move arriving while another runs replaces it: the running move brakes to a stop along
 //! its ramps (its `MoveFinished` says `Stopped`), and the new one is planned from where the
@@ -82,6 +84,8 @@ impl<S: Storage> Controller<S> {
         if let Some(reply) = self.replies.lookup(request.id, fingerprint) {
             return Ok(reply);
         }
+        // Not remembered: a request refused as busy may run once control is free.
+        self.admit(session, command)?;
         let reply = self
             .execute(session, request.id, command, now, rng)
             .unwrap_or_else(Reply::Error);

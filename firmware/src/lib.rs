@@ -9,6 +9,8 @@
 //! - every decoded request goes to [`Controller::handle`], whose `out` receives exactly one
 //!   message, the reply, for that session;
 //! - a frame that could not be decoded goes to [`Controller::link_error`];
+//! - when a connection ends, its session goes to [`Controller::end_session`], which
+//!   releases control of the motors if that session held it;
 //! - [`Controller::poll`] runs whenever [`Controller::next_deadline_us`] is due (and may run
 //!   more often); its `out` receives the notifications meant for *every* session
 //!   (`MoveFinished`, `Fault`), which the embedder broadcasts. Notifications raised while
@@ -17,7 +19,10 @@
 #![cfg_attr(not(test), no_std)]
 
 mod axis;
+#[cfg(any(feature = "board", feature = "emu"))]
+pub mod board;
 pub mod config;
+mod control;
 mod controller;
 mod dispatch;
 pub mod driver;

@@ -1,4 +1,4 @@
-//! One connection's state: link kind, handshake and authentication.
+//! One connection's state: link kind, handshake, authentication and the control claim.
 
 use optalign_protocol::limits::NONCE_LEN;
 
@@ -21,6 +21,8 @@ pub struct Session {
     pub(crate) authenticated: Option<u32>,
     /// The outstanding challenge; used up by the next response.
     pub(crate) nonce: Option<[u8; NONCE_LEN]>,
+    /// The control claim this session was given (see [`crate::Controller::end_session`]).
+    pub(crate) claim: Option<u32>,
 }
 
 impl Session {
@@ -30,6 +32,7 @@ impl Session {
             handshaken: false,
             authenticated: None,
             nonce: None,
+            claim: None,
         }
     }
 

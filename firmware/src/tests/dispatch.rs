@@ -11,31 +11,31 @@ use super::rig::{CAPABILITIES, Rig, values};
 use crate::config::default_config;
 use crate::{LinkKind, Session};
 
-fn plain() -> AxisConfig {
+pub(super) fn plain() -> AxisConfig {
     AxisConfig {
         backlash_mode: BacklashMode::Off,
         ..default_config(Capabilities(CAPABILITIES))
     }
 }
 
-fn code(reply: &Reply) -> Option<ErrorCode> {
+pub(super) fn code(reply: &Reply) -> Option<ErrorCode> {
     match reply {
         Reply::Error(error) => Some(error.code),
         _ => None,
     }
 }
 
-fn reason(reply: &Reply) -> String {
+pub(super) fn reason(reply: &Reply) -> String {
     match reply {
         Reply::Error(error) => error.reason.to_string(),
         other => panic!("expected an error, got {other:?}"),
     }
 }
 
-const KEY: [u8; 32] = [7; 32];
+pub(super) const KEY: [u8; 32] = [7; 32];
 
 /// A network session that completed the handshake.
-fn network(rig: &mut Rig) -> Session {
+pub(super) fn network(rig: &mut Rig) -> Session {
     let mut session = Session::new(LinkKind::Network);
     let hello = Command::Hello {
         protocol_version: PROTOCOL_VERSION,
@@ -47,7 +47,7 @@ fn network(rig: &mut Rig) -> Session {
     session
 }
 
-fn authenticate(rig: &mut Rig, session: &mut Session, key: &[u8; 32]) -> Reply {
+pub(super) fn authenticate(rig: &mut Rig, session: &mut Session, key: &[u8; 32]) -> Reply {
     let Reply::Challenge { nonce } = rig.send_on(session, RequestId(2), Command::AuthChallenge)
     else {
         panic!("no challenge");
@@ -56,7 +56,7 @@ fn authenticate(rig: &mut Rig, session: &mut Session, key: &[u8; 32]) -> Reply {
     rig.send_on(session, RequestId(3), Command::AuthResponse { tag })
 }
 
-fn a_move() -> Command {
+pub(super) fn a_move() -> Command {
     Command::MoveTo {
         targets: values(&[(0, 10)]),
     }

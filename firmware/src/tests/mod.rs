@@ -1,6 +1,7 @@
 //! Whole-controller tests against the simulated mount.
 
 mod backlash;
+mod control;
 mod dispatch;
 mod motion;
 mod persistence;
