@@ -141,6 +141,11 @@ impl PeerCore {
         out
     }
 
+    /// Ends `session` (its connection closed), releasing control if it held it.
+    pub fn end_session(&mut self, session: &mut Session) {
+        self.controller.end_session(session);
+    }
+
     /// Answers an unreadable frame from `session`.
     pub fn link_error(&mut self, error: FrameError) -> Vec<PeerMessage> {
         let mut out = Vec::new();

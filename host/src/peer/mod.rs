@@ -8,6 +8,7 @@
 mod clock;
 mod core;
 mod mechanics;
+pub mod registry;
 mod server;
 mod state_file;
 

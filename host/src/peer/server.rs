@@ -66,6 +66,7 @@ impl SimPeer {
             .await
             .map_err(|e| anyhow::anyhow!("cannot listen on {address}: {e}"))?;
         let bound = listener.local_addr()?;
+        super::registry::register(bound, self);
         let peer = self.clone();
         let accept = tokio::spawn(async move {
             loop {
@@ -102,7 +103,7 @@ impl SimPeer {
         Ok(path)
     }
 
-    /// Serves one byte stream until it ends.
+    /// Serves one byte stream until it ends, then ends its session (releasing control).
     pub async fn serve<S>(self: &Arc<Self>, stream: S, link: LinkKind)
     where
         S: AsyncRead + AsyncWrite + Send + 'static,
@@ -140,6 +141,7 @@ impl SimPeer {
                 let _ = replies.send(answer);
             }
         }
+        self.core().end_session(&mut session);
         drop(replies);
         let _ = writer.await;
     }
