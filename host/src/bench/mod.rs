@@ -1,0 +1,345 @@
+//! The benchmark: runs a task x policy x seed matrix (optionally across the values of one
+//! difficulty knob) on simulated rigs in parallel, then writes `results.csv`, `summary.md`
+//! and the charts. Each worker thread drives its own rig and its own single-threaded async
+//! runtime, so runs never share state.
+
+pub mod charts;
+pub mod report;
+pub mod results;
+pub mod sweep;
+
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::Instant;
+
+use anyhow::Context;
+use indicatif::ProgressBar;
+
+use crate::policy::vlm::VlmOptions;
+use crate::policy::{PolicyOptions, TaskBrief, build_policy};
+use crate::rig::{MotorPath, SimRig};
+use crate::run::{RunOptions, RunSummary, run_dir, run_episode};
+use crate::scenario::ScenarioFile;
+use crate::task::TaskKind;
+
+pub use sweep::{Knob, Setting, SweepSpec};
+
+/// One run of the matrix.
+#[derive(Clone, Debug)]
+pub struct RunSpec {
+    pub task: TaskKind,
+    pub policy: String,
+    pub seed: u64,
+    pub scenario: Arc<ScenarioFile>,
+    /// The knob value this run belongs to, in a sweep.
+    pub setting: Option<Setting>,
+    /// Where its transcript goes; nothing is written when `None`.
+    pub out_dir: Option<PathBuf>,
+}
+
+/// One finished run.
+#[derive(Clone, Debug)]
+pub struct RunRecord {
+    pub summary: RunSummary,
+    pub setting: Option<Setting>,
+    pub out_dir: Option<PathBuf>,
+    /// Real time the run took on this machine, s.
+    pub elapsed_s: f64,
+}
+
+/// How the matrix runs.
+#[derive(Clone, Debug)]
+pub struct MatrixOptions {
+    /// Worker threads.
+    pub jobs: usize,
+    pub motors: MotorPath,
+    /// Save every frame of every run next to its transcript.
+    pub save_frames: bool,
+    /// Settings of the `vlm` policy, when the matrix has it.
+    pub vlm: Option<VlmOptions>,
+}
+
+impl Default for MatrixOptions {
+    fn default() -> Self {
+        Self {
+            jobs: default_jobs(),
+            motors: MotorPath::InProcess,
+            save_frames: false,
+            vlm: None,
+        }
+    }
+}
+
+/// The number of cores this machine offers.
+pub fn default_jobs() -> usize {
+    std::thread::available_parallelism().map_or(1, |n| n.get())
+}
+
+/// The runs of a task x policy x seed matrix on one scenario; transcripts go under
+/// `runs_root` (`<task>-<policy>-seed<N>`) when it is given.
+pub fn matrix(
+    tasks: &[TaskKind],
+    policies: &[String],
+    seeds: &[u64],
+    scenario: &Arc<ScenarioFile>,
+    setting: Option<Setting>,
+    runs_root: Option<&std::path::Path>,
+) -> Vec<RunSpec> {
+    let mut specs = Vec::with_capacity(tasks.len() * policies.len() * seeds.len());
+    for &task in tasks {
+        for policy in policies {
+            for &seed in seeds {
+                specs.push(RunSpec {
+                    task,
+                    policy: policy.clone(),
+                    seed,
+                    scenario: scenario.clone(),
+                    setting,
+                    out_dir: runs_root.map(|root| run_dir(root, task, policy, seed)),
+                });
+            }
+        }
+    }
+    specs
+}
+
+/// Runs every spec on `options.jobs` worker threads, advancing `progress` as runs finish;
+/// the records come back in the specs' order. The first failing run (a rig or file error;
+/// a policy that gives up only ends its own run) fails the whole matrix.
+pub fn run_matrix(
+    specs: &[RunSpec],
+    options: &MatrixOptions,
+    progress: &ProgressBar,
+) -> anyhow::Result<Vec<RunRecord>> {
+    let next = AtomicUsize::new(0);
+    let slots: Mutex<Vec<Option<anyhow::Result<RunRecord>>>> =
+        Mutex::new((0..specs.len()).map(|_| None).collect());
+    std::thread::scope(|scope| {
+        for _ in 0..options.jobs.clamp(1, specs.len().max(1)) {
+            scope.spawn(|| {
+                let runtime = tokio::runtime::Builder::new_current_thread()
+                    .enable_all()
+                    .build();
+                loop {
+                    let index = next.fetch_add(1, Ordering::Relaxed);
+                    let Some(spec) = specs.get(index) else { break };
+                    let record = match &runtime {
+                        Ok(runtime) => runtime.block_on(run_one(spec, options)),
+                        Err(error) => Err(anyhow::anyhow!("cannot start a runtime: {error}")),
+                    };
+                    progress.inc(1);
+                    let record = record.with_context(|| {
+                        format!("{} with {} on seed {}", spec.task, spec.policy, spec.seed)
+                    });
+                    slots.lock().unwrap_or_else(|e| e.into_inner())[index] = Some(record);
+                }
+            });
+        }
+    });
+    slots
+        .into_inner()
+        .unwrap_or_else(|e| e.into_inner())
+        .into_iter()
+        .map(|slot| slot.unwrap_or_else(|| Err(anyhow::anyhow!("a run never finished"))))
+        .collect()
+}
+
+/// Runs one spec on its own simulated rig.
+pub async fn run_one(spec: &RunSpec, options: &MatrixOptions) -> anyhow::Result<RunRecord> {
+    let started = Instant::now();
+    let scenario = spec.scenario.as_ref();
+    let brief = TaskBrief {
+        task: spec.task,
+        limits: scenario.tasks.clone(),
+        budget: scenario.tasks.budget(spec.task),
+    };
+    let policy_options = PolicyOptions {
+        seed: spec.seed,
+        vlm: options.vlm.clone(),
+    };
+    let mut built = build_policy(&spec.policy, &brief, &policy_options)?;
+    let mut rig = SimRig::new(spec.task, scenario, spec.seed, options.motors).await?;
+    let run_options = RunOptions {
+        out_dir: spec.out_dir.clone(),
+        save_frames: options.save_frames,
+        seed: spec.seed,
+        ..RunOptions::default()
+    };
+    let summary = run_episode(
+        &mut rig,
+        built.policy.as_mut(),
+        built.objective.as_ref(),
+        &scenario.tasks,
+        &run_options,
+    )
+    .await?;
+    Ok(RunRecord {
+        summary,
+        setting: spec.setting,
+        out_dir: spec.out_dir.clone(),
+        elapsed_s: started.elapsed().as_secs_f64(),
+    })
+}
+
+/// A whole bench: the matrix, where it goes, and optionally one knob to sweep.
+#[derive(Clone, Debug)]
+pub struct BenchPlan {
+    pub tasks: Vec<TaskKind>,
+    pub policies: Vec<String>,
+    pub seeds: Vec<u64>,
+    pub scenario: Arc<ScenarioFile>,
+    /// How the summary names the scenario (its file, or "defaults").
+    pub scenario_label: String,
+    pub out: PathBuf,
+    pub options: MatrixOptions,
+    pub sweep: Option<SweepSpec>,
+}
+
+/// What a bench produced.
+#[derive(Debug)]
+pub struct BenchOutput {
+    pub records: Vec<RunRecord>,
+    pub csv: PathBuf,
+    pub summary: PathBuf,
+    pub charts: Vec<PathBuf>,
+    /// The tables of `summary.md`, for printing.
+    pub tables: String,
+    pub wall_time_s: f64,
+}
+
+/// Runs a bench and writes `results.csv`, `summary.md`, `charts/` and the per-run
+/// transcripts under `runs/` in the plan's output folder.
+pub fn run_bench(plan: &BenchPlan, progress: &ProgressBar) -> anyhow::Result<BenchOutput> {
+    let started = Instant::now();
+    let runs_root = plan.out.join("runs");
+    let (specs, tasks, settings) = match &plan.sweep {
+        None => (
+            matrix(
+                &plan.tasks,
+                &plan.policies,
+                &plan.seeds,
+                &plan.scenario,
+                None,
+                Some(&runs_root),
+            ),
+            plan.tasks.clone(),
+            Vec::new(),
+        ),
+        Some(sweep) => {
+            let tasks: Vec<TaskKind> = plan
+                .tasks
+                .iter()
+                .copied()
+                .filter(|t| sweep.knob.applies_to(*t))
+                .collect();
+            anyhow::ensure!(
+                !tasks.is_empty(),
+                "sweep knob {} changes none of the tasks {}",
+                sweep.knob,
+                plan.tasks
+                    .iter()
+                    .map(|t| t.name())
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            );
+            let mut specs = Vec::new();
+            let mut settings = Vec::new();
+            for (setting, scenario) in sweep
+                .scenarios(&plan.scenario)
+                .map_err(anyhow::Error::msg)?
+            {
+                let root = runs_root.join(format!("{}={}", setting.knob, setting.value));
+                specs.extend(matrix(
+                    &tasks,
+                    &plan.policies,
+                    &plan.seeds,
+                    &Arc::new(scenario),
+                    Some(setting),
+                    Some(&root),
+                ));
+                settings.push(setting);
+            }
+            (specs, tasks, settings)
+        }
+    };
+    std::fs::create_dir_all(&plan.out)
+        .with_context(|| format!("cannot create {}", plan.out.display()))?;
+    progress.set_length(specs.len() as u64);
+    let records = run_matrix(&specs, &plan.options, progress)?;
+    progress.finish_and_clear();
+    let wall_time_s = started.elapsed().as_secs_f64();
+    let charts_dir = plan.out.join("charts");
+    let (tables, charts) = if settings.is_empty() {
+        (
+            results::task_tables(&records, &tasks, &plan.policies, &plan.scenario),
+            charts::write_bench_charts(
+                &charts_dir,
+                &records,
+                &tasks,
+                &plan.policies,
+                &plan.scenario,
+            )?,
+        )
+    } else {
+        (
+            results::sweep_tables(&records, &tasks, &plan.policies, &settings),
+            charts::write_sweep_chart(&charts_dir, &records, &tasks, &plan.policies, &settings)?,
+        )
+    };
+    let csv = plan.out.join("results.csv");
+    results::write_csv(&csv, &records)?;
+    let summary = plan.out.join("summary.md");
+    let info = results::BenchInfo {
+        tasks,
+        policies: plan.policies.clone(),
+        seeds: plan.seeds.clone(),
+        scenario: plan.scenario_label.clone(),
+        jobs: plan.options.jobs,
+        wall_time_s,
+    };
+    results::write_summary(&summary, &info, &tables, &charts)?;
+    Ok(BenchOutput {
+        records,
+        csv,
+        summary,
+        charts,
+        tables,
+        wall_time_s,
+    })
+}
+
+/// Parses a seed list: `0..10` (half-open), `3..=5`, `0,4,7`, or one number.
+pub fn parse_seeds(text: &str) -> Result<Vec<u64>, String> {
+    let number = |s: &str| {
+        s.trim()
+            .parse::<u64>()
+            .map_err(|_| format!("{:?} is not a seed number", s.trim()))
+    };
+    let seeds: Vec<u64> = if let Some((from, to)) = text.split_once("..=") {
+        (number(from)?..=number(to)?).collect()
+    } else if let Some((from, to)) = text.split_once("..") {
+        (number(from)?..number(to)?).collect()
+    } else {
+        text.split(',').map(number).collect::<Result<_, _>>()?
+    };
+    if seeds.is_empty() {
+        return Err(format!("{text:?} names no seeds"));
+    }
+    Ok(seeds)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn seed_lists_parse_in_every_form() {
+        assert_eq!(parse_seeds("0..10").unwrap(), (0..10).collect::<Vec<_>>());
+        assert_eq!(parse_seeds("3..=5").unwrap(), vec![3, 4, 5]);
+        assert_eq!(parse_seeds("0, 4,7").unwrap(), vec![0, 4, 7]);
+        assert_eq!(parse_seeds("12").unwrap(), vec![12]);
+        assert!(parse_seeds("5..5").unwrap_err().contains("names no seeds"));
+        assert!(parse_seeds("a..3").unwrap_err().contains("\"a\""));
+    }
+}

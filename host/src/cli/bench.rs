@@ -1,0 +1,193 @@
+//! `optalign bench`: the task x policy x seed matrix on simulated rigs, in parallel, with
+//! `results.csv`, `summary.md`, charts and per-run transcripts; `--sweep KNOB=v1,v2,...`
+//! repeats it across the values of one difficulty knob.
+
+use std::path::PathBuf;
+use std::sync::Arc;
+
+use clap::Args;
+use indicatif::{ProgressBar, ProgressStyle};
+
+use super::run::VlmArgs;
+use crate::bench::{BenchPlan, MatrixOptions, SweepSpec, default_jobs, parse_seeds, run_bench};
+use crate::policy::policy_names;
+use crate::policy::vlm::{self, CostEstimate, VlmOptions};
+use crate::rig::MotorPath;
+use crate::scenario::ScenarioFile;
+use crate::task::TaskKind;
+
+/// The policies a bench compares when none are named.
+const DEFAULT_POLICIES: [&str; 3] = ["random", "bo", "vision"];
+
+#[derive(Debug, Args)]
+pub struct BenchArgs {
+    /// Tasks, comma-separated.
+    #[arg(long, value_delimiter = ',', default_value = "michelson,cavity,relay")]
+    tasks: Vec<TaskKind>,
+    /// Policies, comma-separated [default: random,bo,vision].
+    #[arg(long, value_delimiter = ',')]
+    policies: Vec<String>,
+    /// Seeds: a range 0..10 (half-open) or 3..=5, a list 0,4,7, or one number.
+    #[arg(long, default_value = "0..10", value_parser = parse_seed_list)]
+    seeds: SeedList,
+    /// Scenario file (TOML); defaults apply when omitted.
+    #[arg(long, value_name = "FILE")]
+    scenario: Option<PathBuf>,
+    /// Output folder.
+    #[arg(long, value_name = "DIR", default_value = "runs/bench")]
+    out: PathBuf,
+    /// Runs in parallel [default: the number of cores].
+    #[arg(long)]
+    jobs: Option<usize>,
+    /// Vary one scenario knob: noise, backlash, offset_scale, artefact_brightness,
+    /// placement_error, sensitivity_scale or cross_coupling, e.g. noise=0,5,10,20.
+    #[arg(long, value_name = "KNOB=V1,V2,...", value_parser = SweepSpec::parse)]
+    sweep: Option<SweepSpec>,
+    /// Save every frame of every run next to its transcript (slow, large).
+    #[arg(long)]
+    frames: bool,
+    /// How motor commands reach the simulated firmware.
+    #[arg(long, value_enum, default_value = "in-process")]
+    motors: MotorPath,
+    /// Start even when the estimated model cost of the vlm runs is large.
+    #[arg(long)]
+    yes: bool,
+    #[command(flatten)]
+    vlm: VlmArgs,
+}
+
+#[derive(Clone, Debug)]
+struct SeedList(Vec<u64>);
+
+fn parse_seed_list(text: &str) -> Result<SeedList, String> {
+    parse_seeds(text).map(SeedList)
+}
+
+/// The policies to run: the named ones (each must exist), or the defaults that exist.
+fn resolve_policies(named: &[String]) -> anyhow::Result<Vec<String>> {
+    let available = policy_names();
+    if named.is_empty() {
+        let (present, missing): (Vec<&str>, Vec<&str>) =
+            DEFAULT_POLICIES.iter().partition(|p| available.contains(p));
+        if !missing.is_empty() {
+            eprintln!(
+                "note: policies {} are not available in this build; running {}",
+                missing.join(", "),
+                present.join(", ")
+            );
+        }
+        return Ok(present.into_iter().map(str::to_owned).collect());
+    }
+    for policy in named {
+        anyhow::ensure!(
+            available.contains(&policy.as_str()),
+            "unknown policy {policy:?}: available: {}",
+            available.join(", ")
+        );
+    }
+    Ok(named.to_vec())
+}
+
+/// With `vlm` in the matrix: checks its settings and key, prints the estimated model use of
+/// all its runs, and requires `--yes` when that is large.
+async fn vlm_preflight(
+    args: &VlmArgs,
+    yes: bool,
+    runs_per_task: u64,
+    policies: &[String],
+    tasks: &[TaskKind],
+    scenario: &ScenarioFile,
+) -> anyhow::Result<Option<VlmOptions>> {
+    if !policies.iter().any(|p| p == "vlm") {
+        return Ok(None);
+    }
+    let options = args
+        .options()
+        .ok_or_else(|| anyhow::anyhow!("--policies vlm needs --model"))?;
+    vlm::preflight(&options)?;
+    let pricing = vlm::fetch_pricing(&options).await.unwrap_or_else(|error| {
+        eprintln!("note: no model prices from the endpoint ({error:#})");
+        None
+    });
+    let mut estimate = CostEstimate::default();
+    for &task in tasks {
+        estimate.add(
+            &vlm::estimate_cost(task, scenario, &options, pricing.as_ref())?.times(runs_per_task),
+        );
+    }
+    eprintln!("vlm model use if every run spends its whole budget: {estimate}");
+    anyhow::ensure!(
+        yes || !vlm::needs_confirmation(&estimate),
+        "the vlm runs may be expensive ({estimate}); pass --yes to start anyway"
+    );
+    Ok(Some(options))
+}
+
+pub async fn run(args: BenchArgs) -> anyhow::Result<()> {
+    let scenario = ScenarioFile::load_or_default(args.scenario.as_deref())?;
+    let mut tasks = Vec::new();
+    for task in args.tasks {
+        if !tasks.contains(&task) {
+            tasks.push(task);
+        }
+    }
+    let policies = resolve_policies(&args.policies)?;
+    let runs_per_task =
+        (args.seeds.0.len() * args.sweep.as_ref().map_or(1, |s| s.values.len())) as u64;
+    let vlm = vlm_preflight(
+        &args.vlm,
+        args.yes,
+        runs_per_task,
+        &policies,
+        &tasks,
+        &scenario,
+    )
+    .await?;
+    let plan = BenchPlan {
+        tasks,
+        policies,
+        seeds: args.seeds.0,
+        scenario: Arc::new(scenario),
+        scenario_label: args
+            .scenario
+            .as_ref()
+            .map_or_else(|| "defaults".to_owned(), |p| p.display().to_string()),
+        out: args.out,
+        options: MatrixOptions {
+            jobs: args.jobs.unwrap_or_else(default_jobs).max(1),
+            motors: args.motors,
+            save_frames: args.frames,
+            vlm: vlm.clone(),
+        },
+        sweep: args.sweep,
+    };
+    let progress = ProgressBar::new(0).with_style(
+        ProgressStyle::with_template(
+            "{bar:40.cyan/blue} {pos}/{len} runs  {elapsed_precise} (eta {eta})",
+        )?
+        .progress_chars("=> "),
+    );
+    let output = tokio::task::spawn_blocking(move || {
+        run_bench(&plan, &progress).map(|output| (plan, output))
+    })
+    .await??;
+    let (plan, output) = output;
+    println!("{}", output.tables.trim_end());
+    println!(
+        "\n{} runs in {:.1} s on {} job(s)",
+        output.records.len(),
+        output.wall_time_s,
+        plan.options.jobs
+    );
+    if let Some(vlm) = &vlm {
+        println!("model usage: {}", vlm.usage.total());
+    }
+    println!("results: {}", output.csv.display());
+    println!("summary: {}", output.summary.display());
+    println!(
+        "charts:  {} files in {}",
+        output.charts.len(),
+        plan.out.join("charts").display()
+    );
+    Ok(())
+}

@@ -1,0 +1,196 @@
+//! The bench on tiny matrices: it writes results.csv, summary.md, PNG and SVG charts and
+//! per-run transcripts; a sweep writes one row per knob value and its chart; the demo's
+//! HTML report shows each frame as a thumbnail with its action.
+
+use std::path::Path;
+use std::sync::Arc;
+
+use indicatif::ProgressBar;
+use optalign::bench::report::{THUMBNAIL_WIDTH, write_report};
+use optalign::bench::{BenchPlan, MatrixOptions, SweepSpec, matrix, run_bench, run_matrix};
+use optalign::rig::MotorPath;
+use optalign::scenario::ScenarioFile;
+use optalign::task::TaskKind;
+
+fn tiny_scenario() -> ScenarioFile {
+    let mut scenario = ScenarioFile::default();
+    scenario.tasks.michelson.budget = 6;
+    scenario.tasks.cavity.budget = 6;
+    scenario.tasks.relay.budget = 6;
+    scenario
+}
+
+fn plan(out: &Path, tasks: Vec<TaskKind>, seeds: Vec<u64>, sweep: Option<SweepSpec>) -> BenchPlan {
+    BenchPlan {
+        tasks,
+        policies: vec!["random".into()],
+        seeds,
+        scenario: Arc::new(tiny_scenario()),
+        scenario_label: "tiny".into(),
+        out: out.to_owned(),
+        options: MatrixOptions {
+            jobs: 2,
+            motors: MotorPath::InProcess,
+            save_frames: false,
+            ..MatrixOptions::default()
+        },
+        sweep,
+    }
+}
+
+fn assert_chart(dir: &Path, stem: &str) {
+    let png = std::fs::read(dir.join(format!("{stem}.png"))).unwrap();
+    let decoded = image::load_from_memory(&png).unwrap();
+    assert!(decoded.width() >= 600 && decoded.height() >= 300, "{stem}");
+    assert!(png.len() < 200_000, "{stem}.png is {} bytes", png.len());
+    let svg = std::fs::read_to_string(dir.join(format!("{stem}.svg"))).unwrap();
+    assert!(svg.contains("<svg") && svg.contains("</svg>"), "{stem}.svg");
+}
+
+#[test]
+fn a_bench_writes_results_summary_charts_and_transcripts() {
+    let out = tempfile::tempdir().unwrap();
+    let plan = plan(
+        out.path(),
+        vec![TaskKind::Cavity, TaskKind::Relay],
+        vec![0, 1],
+        None,
+    );
+    let output = run_bench(&plan, &ProgressBar::hidden()).unwrap();
+    assert_eq!(output.records.len(), 4);
+
+    let csv = std::fs::read_to_string(out.path().join("results.csv")).unwrap();
+    let lines: Vec<&str> = csv.lines().collect();
+    assert_eq!(lines.len(), 5, "{csv}");
+    assert!(lines[0].starts_with("knob,value,task,policy,seed,success"));
+    assert!(lines[1].starts_with(",,cavity,random,0,"), "{}", lines[1]);
+    assert!(lines[4].starts_with(",,relay,random,1,"), "{}", lines[4]);
+
+    let summary = std::fs::read_to_string(out.path().join("summary.md")).unwrap();
+    assert!(summary.contains("## cavity (budget 6"), "{summary}");
+    assert!(summary.contains("| random | "), "{summary}");
+    assert!(summary.contains("Relay milestones"), "{summary}");
+    assert!(
+        summary.contains("(charts/speed_accuracy_cavity.png)"),
+        "{summary}"
+    );
+
+    let charts = out.path().join("charts");
+    for stem in [
+        "speed_accuracy_cavity",
+        "convergence_cavity",
+        "speed_accuracy_relay",
+        "convergence_relay",
+        "relay_milestones",
+    ] {
+        assert_chart(&charts, stem);
+    }
+    assert_eq!(output.charts.len(), 10);
+    for run in ["cavity-random-seed0", "relay-random-seed1"] {
+        let dir = out.path().join("runs").join(run);
+        assert!(dir.join("transcript.jsonl").is_file(), "{run}");
+        assert!(dir.join("summary.json").is_file(), "{run}");
+    }
+}
+
+#[test]
+fn a_sweep_writes_one_group_per_value_and_its_chart() {
+    let out = tempfile::tempdir().unwrap();
+    let sweep = SweepSpec::parse("artefact_brightness=0,3").unwrap();
+    let plan = plan(
+        out.path(),
+        vec![TaskKind::Michelson, TaskKind::Cavity],
+        vec![0],
+        Some(sweep),
+    );
+    let output = run_bench(&plan, &ProgressBar::hidden()).unwrap();
+    // The knob only changes the cavity, so only the cavity runs.
+    assert_eq!(output.records.len(), 2);
+    let csv = std::fs::read_to_string(out.path().join("results.csv")).unwrap();
+    assert!(
+        csv.contains("\nartefact_brightness,0,cavity,random,0,"),
+        "{csv}"
+    );
+    assert!(
+        csv.contains("\nartefact_brightness,3,cavity,random,0,"),
+        "{csv}"
+    );
+    let summary = std::fs::read_to_string(out.path().join("summary.md")).unwrap();
+    assert!(summary.contains("## cavity: success rate"), "{summary}");
+    assert!(!summary.contains("## michelson"), "{summary}");
+    assert_chart(&out.path().join("charts"), "sweep_artefact_brightness");
+    assert!(
+        out.path()
+            .join("runs/artefact_brightness=3/cavity-random-seed0/transcript.jsonl")
+            .is_file()
+    );
+}
+
+#[test]
+fn sweeps_that_change_nothing_or_break_the_scenario_fail_naming_the_knob() {
+    let out = tempfile::tempdir().unwrap();
+    let sweep = SweepSpec::parse("placement_error=1,2").unwrap();
+    let error = run_bench(
+        &plan(out.path(), vec![TaskKind::Cavity], vec![0], Some(sweep)),
+        &ProgressBar::hidden(),
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(
+        error.contains("placement_error") && error.contains("cavity"),
+        "{error}"
+    );
+    let sweep = SweepSpec::parse("noise=1,400").unwrap();
+    let error = run_bench(
+        &plan(out.path(), vec![TaskKind::Cavity], vec![0], Some(sweep)),
+        &ProgressBar::hidden(),
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(
+        error.contains("noise=400") && error.contains("noise.std"),
+        "{error}"
+    );
+    assert!(
+        !out.path().join("results.csv").exists(),
+        "nothing runs before the check"
+    );
+}
+
+#[test]
+fn the_report_shows_every_frame_with_its_action() {
+    let out = tempfile::tempdir().unwrap();
+    let scenario = Arc::new(tiny_scenario());
+    let specs = matrix(
+        &[TaskKind::Cavity],
+        &["random".to_owned()],
+        &[4],
+        &scenario,
+        None,
+        Some(out.path()),
+    );
+    let options = MatrixOptions {
+        jobs: 1,
+        motors: MotorPath::Peer,
+        save_frames: true,
+        ..MatrixOptions::default()
+    };
+    let records = run_matrix(&specs, &options, &ProgressBar::hidden()).unwrap();
+    let report = write_report(out.path(), "demo <test>", "intro", &records, &[]).unwrap();
+    let html = std::fs::read_to_string(&report).unwrap();
+    assert!(html.contains("<title>demo &lt;test&gt;</title>"));
+    let run = out.path().join("cavity-random-seed4");
+    for evaluation in 0..=6 {
+        let thumb = run.join(format!("thumbs/{evaluation:04}.png"));
+        let image = image::open(&thumb).unwrap();
+        assert_eq!(image.width(), THUMBNAIL_WIDTH);
+        assert!(html.contains(&format!("cavity-random-seed4/thumbs/{evaluation:04}.png")));
+    }
+    assert!(html.contains("0 · start · error "), "{html}");
+    assert!(
+        html.contains("6 · x="),
+        "the last step's action is captioned"
+    );
+    assert!(html.contains("(done)"), "{html}");
+    assert!(run.join("error.svg").is_file() && run.join("error.png").is_file());
+}
