@@ -1,0 +1,60 @@
+//! The image-only vision agent ("vision"): system identification by intervention. It sees only the
+//! images, the feedback on its actions and the brief. Per actuator it makes small probes,
+//! finds the feature that moved (stationary features are artefacts), fits an affine
+//! motor-to-image map to the clean sightings, solves it for the target, checks the result
+//! with a further measurement, and declares done only when the images agree.
+
+mod cavity;
+mod michelson;
+mod model;
+mod relay;
+mod track;
+
+use async_trait::async_trait;
+
+use super::{Decision, Feedback, Observation, Policy, PolicyError, TaskBrief};
+use crate::task::{Action, TaskKind};
+use cavity::CavityAgent;
+use michelson::MichelsonAgent;
+use relay::RelayAgent;
+
+/// The per-task agent.
+enum Agent {
+    Michelson(MichelsonAgent),
+    Cavity(CavityAgent),
+    Relay(RelayAgent),
+}
+
+/// The image-only alignment policy.
+pub struct VisionPolicy {
+    agent: Agent,
+}
+
+impl VisionPolicy {
+    pub fn new(brief: &TaskBrief) -> Self {
+        let agent = match brief.task {
+            TaskKind::Michelson => Agent::Michelson(MichelsonAgent::new(&brief.limits.michelson)),
+            TaskKind::Cavity => Agent::Cavity(CavityAgent::new(&brief.limits.cavity)),
+            TaskKind::Relay => Agent::Relay(RelayAgent::new(&brief.limits.relay)),
+        };
+        Self { agent }
+    }
+}
+
+#[async_trait]
+impl Policy for VisionPolicy {
+    fn name(&self) -> String {
+        "vision".into()
+    }
+
+    async fn decide(&mut self, observation: &Observation) -> Result<Decision, PolicyError> {
+        let rejected = matches!(observation.feedback, Feedback::Rejected { .. });
+        let (image, remaining) = (&observation.image, observation.remaining);
+        let action = match &mut self.agent {
+            Agent::Michelson(agent) => agent.decide(image, rejected, remaining),
+            Agent::Cavity(agent) => agent.decide(image, rejected, remaining),
+            Agent::Relay(agent) => Action::Relay(agent.decide(image, rejected, remaining)),
+        };
+        Ok(Decision::new(action))
+    }
+}

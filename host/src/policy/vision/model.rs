@@ -1,0 +1,255 @@
+//! The agent's model of one two-axis actuator: observations of where a feature was seen for
+//! which motor command, an affine motor-to-image map fitted to them by least squares, and
+//! the choice of the next probe (an axis not yet moved, or an expanding search when the
+//! feature has not been seen).
+
+/// A 2-vector (motor steps or pixels).
+pub type Vec2 = [f64; 2];
+
+/// `image = offset + gain · command`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Affine {
+    pub offset: Vec2,
+    /// Rows are image x and y, columns the two motor axes, px per step.
+    pub gain: [[f64; 2]; 2],
+}
+
+impl Affine {
+    /// Where the feature shows for `command`.
+    pub fn predict(&self, command: Vec2) -> Vec2 {
+        let [[a, b], [c, d]] = self.gain;
+        [
+            self.offset[0] + a * command[0] + b * command[1],
+            self.offset[1] + c * command[0] + d * command[1],
+        ]
+    }
+
+    /// The command that puts the feature at `point`, when the gain is invertible.
+    pub fn solve(&self, point: Vec2) -> Option<Vec2> {
+        let [[a, b], [c, d]] = self.gain;
+        let det = a * d - b * c;
+        if det.abs() < 1e-12 {
+            return None;
+        }
+        let [rx, ry] = [point[0] - self.offset[0], point[1] - self.offset[1]];
+        Some([(d * rx - b * ry) / det, (a * ry - c * rx) / det])
+    }
+
+    /// Least-squares fit to `(command, image)` pairs; `None` unless the commands span both
+    /// axes by at least `min_spread` steps (RMS about their mean along the weaker direction).
+    pub fn fit(points: &[(Vec2, Vec2)], min_spread: f64) -> Option<Affine> {
+        if points.len() < 3 {
+            return None;
+        }
+        let n = points.len() as f64;
+        let mean = |f: &dyn Fn(&(Vec2, Vec2)) -> f64| points.iter().map(f).sum::<f64>() / n;
+        let (mu, mv) = (mean(&|p| p.0[0]), mean(&|p| p.0[1]));
+        let (mx, my) = (mean(&|p| p.1[0]), mean(&|p| p.1[1]));
+        let suu = mean(&|p| (p.0[0] - mu).powi(2));
+        let svv = mean(&|p| (p.0[1] - mv).powi(2));
+        let suv = mean(&|p| (p.0[0] - mu) * (p.0[1] - mv));
+        let det = suu * svv - suv * suv;
+        let trace = suu + svv;
+        let weakest = trace / 2.0 - ((trace / 2.0).powi(2) - det).max(0.0).sqrt();
+        if weakest < min_spread * min_spread {
+            return None;
+        }
+        let mut gain = [[0.0; 2]; 2];
+        for (axis, m) in [mx, my].into_iter().enumerate() {
+            let su = mean(&|p| (p.0[0] - mu) * (p.1[axis] - m));
+            let sv = mean(&|p| (p.0[1] - mv) * (p.1[axis] - m));
+            gain[axis] = [(su * svv - sv * suv) / det, (sv * suu - su * suv) / det];
+        }
+        let offset = [
+            mx - gain[0][0] * mu - gain[0][1] * mv,
+            my - gain[1][0] * mu - gain[1][1] * mv,
+        ];
+        Some(Affine { offset, gain })
+    }
+
+    /// Largest distance between an observation and the model's prediction, px.
+    pub fn worst_residual(&self, points: &[(Vec2, Vec2)]) -> f64 {
+        points
+            .iter()
+            .map(|(u, p)| distance(self.predict(*u), *p))
+            .fold(0.0, f64::max)
+    }
+}
+
+/// Euclidean distance.
+pub fn distance(a: Vec2, b: Vec2) -> f64 {
+    (a[0] - b[0]).hypot(a[1] - b[1])
+}
+
+/// Commands closer than this count as the same probe, steps.
+const SAME_COMMAND: f64 = 100.0;
+
+/// What the agent knows about one feature driven by one two-axis actuator.
+#[derive(Clone, Debug)]
+pub struct Tracker {
+    /// Commands where the feature was measured cleanly (whole, not clipped or overlapped).
+    pub clean: Vec<(Vec2, Vec2)>,
+    /// Commands where the feature showed only partly (clipped, overlapped): where it roughly was.
+    pub partial: Vec<(Vec2, Vec2)>,
+    /// Commands where the feature did not show.
+    pub missing: Vec<Vec2>,
+    /// Probe length per axis, steps.
+    pub probe: Vec2,
+    /// Permitted command range per axis, `[min, max]`.
+    pub range: [Vec2; 2],
+    /// Minimum spread of clean commands for a fit, steps.
+    pub min_spread: f64,
+}
+
+impl Tracker {
+    pub fn new(probe: Vec2, range: [Vec2; 2]) -> Self {
+        Self {
+            clean: Vec::new(),
+            partial: Vec::new(),
+            missing: Vec::new(),
+            probe,
+            range,
+            min_spread: probe[0].min(probe[1]) / 4.0,
+        }
+    }
+
+    /// The fitted model, once the clean observations span both axes.
+    pub fn model(&self) -> Option<Affine> {
+        Affine::fit(&self.clean, self.min_spread)
+    }
+
+    /// Records a clean observation, replacing an earlier one at the same command.
+    pub fn add_clean(&mut self, command: Vec2, image: Vec2) {
+        self.clean.retain(|(u, _)| distance(*u, command) >= 1.0);
+        self.clean.push((command, image));
+    }
+
+    pub fn add_partial(&mut self, command: Vec2, image: Vec2) {
+        self.partial.push((command, image));
+    }
+
+    pub fn add_missing(&mut self, command: Vec2) {
+        self.missing.push(command);
+    }
+
+    /// Whether any observation was made at (about) `command`.
+    fn tried(&self, command: Vec2) -> bool {
+        let near = |u: &Vec2| distance(*u, command) < SAME_COMMAND;
+        self.clean.iter().any(|(u, _)| near(u))
+            || self.partial.iter().any(|(u, _)| near(u))
+            || self.missing.iter().any(near)
+    }
+
+    /// Clamps a command into the permitted range.
+    pub fn clamp(&self, command: Vec2) -> Vec2 {
+        [
+            command[0].clamp(self.range[0][0], self.range[0][1]),
+            command[1].clamp(self.range[1][0], self.range[1][1]),
+        ]
+    }
+
+    fn in_range(&self, command: Vec2) -> bool {
+        self.clamp(command) == command
+    }
+
+    /// The next command to learn the response: a move along an axis the clean observations
+    /// do not yet span, or, while the feature has not been measured cleanly, a step away
+    /// from where it showed partly, or an expanding search around the start.
+    pub fn next_probe(&self, start: Vec2) -> Vec2 {
+        let [px, py] = self.probe;
+        let candidates: Vec<Vec2> = if let Some(&(base, _)) = self.clean.last() {
+            let spans = |axis: usize| {
+                self.clean
+                    .iter()
+                    .any(|(u, _)| (u[axis] - base[axis]).abs() >= self.min_spread)
+            };
+            let mut dirs = Vec::new();
+            for axis in [0, 1] {
+                if !spans(axis) || self.clean.len() >= 2 {
+                    let mut d = [0.0; 2];
+                    d[axis] = self.probe[axis];
+                    dirs.push(d);
+                    dirs.push([-d[0], -d[1]]);
+                }
+            }
+            // Axes not yet spanned first.
+            dirs.sort_by_key(|d| usize::from(spans(usize::from(d[1] != 0.0))));
+            let mut out: Vec<Vec2> = dirs
+                .iter()
+                .map(|d| [base[0] + d[0], base[1] + d[1]])
+                .collect();
+            out.extend(
+                dirs.iter()
+                    .map(|d| [base[0] + 2.0 * d[0], base[1] + 2.0 * d[1]]),
+            );
+            out
+        } else if let Some(&(base, _)) = self.partial.last() {
+            [
+                [px, 0.0],
+                [-px, 0.0],
+                [0.0, py],
+                [0.0, -py],
+                [px, py],
+                [-px, -py],
+                [px, -py],
+                [-px, py],
+            ]
+            .iter()
+            .map(|d| [base[0] + d[0], base[1] + d[1]])
+            .collect()
+        } else {
+            (1..=6)
+                .flat_map(|k| {
+                    let (sx, sy) = (2.0 * px * f64::from(k), 2.0 * py * f64::from(k));
+                    [
+                        [sx, 0.0],
+                        [-sx, 0.0],
+                        [0.0, sy],
+                        [0.0, -sy],
+                        [sx, sy],
+                        [-sx, sy],
+                        [sx, -sy],
+                        [-sx, -sy],
+                    ]
+                })
+                .map(|d| [start[0] + d[0], start[1] + d[1]])
+                .collect()
+        };
+        candidates
+            .into_iter()
+            .map(|c| self.clamp(c))
+            .find(|c| !self.tried(*c) && self.in_range(*c))
+            .unwrap_or_else(|| self.clamp([start[0] + px, start[1] + py]))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn fits_an_exact_affine_map() {
+        let truth = Affine {
+            offset: [900.0, 500.0],
+            gain: [[0.17, 0.012], [-0.01, -0.16]],
+        };
+        let points: Vec<(Vec2, Vec2)> =
+            [[0.0, 0.0], [2000.0, 0.0], [0.0, 2000.0], [1500.0, -700.0]]
+                .iter()
+                .map(|&u| (u, truth.predict(u)))
+                .collect();
+        let fit = Affine::fit(&points, 100.0).unwrap();
+        assert!(fit.worst_residual(&points) < 1e-9);
+        let u = fit.solve([960.0, 540.0]).unwrap();
+        assert!(distance(truth.predict(u), [960.0, 540.0]) < 1e-9);
+        assert!(Affine::fit(&points[..2], 100.0).is_none());
+    }
+
+    #[test]
+    fn probes_an_unspanned_axis_next() {
+        let mut tracker = Tracker::new([1500.0, 1500.0], [[-8000.0, 8000.0], [-6000.0, 6000.0]]);
+        tracker.add_clean([0.0, 0.0], [100.0, 100.0]);
+        tracker.add_clean([1500.0, 0.0], [350.0, 100.0]);
+        assert_eq!(tracker.next_probe([0.0, 0.0]), [1500.0, 1500.0]);
+    }
+}

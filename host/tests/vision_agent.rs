@@ -1,0 +1,108 @@
+//! The image-only "vision" policy: beam detection on rendered frames (sub-pixel centroids,
+//! speckle against a spot, stationary artefacts cancelling in frame differences) and one
+//! short end-to-end run per task, judged by the hidden truth.
+
+use optalign::imaging::{changes, find_beams};
+use optalign::policy::{PolicyOptions, TaskBrief, build_policy};
+use optalign::rig::{MotorPath, SimRig};
+use optalign::run::{RunOptions, run_episode};
+use optalign::scenario::ScenarioFile;
+use optalign::task::TaskKind;
+use optalign_optics::{CameraPose, Cavity, Michelson, Relay, Station};
+
+fn distance(a: [f64; 2], b: [f64; 2]) -> f64 {
+    (a[0] - b[0]).hypot(a[1] - b[1])
+}
+
+#[test]
+fn a_clean_michelson_beam_is_found_within_a_pixel() {
+    let scene = Michelson::new(ScenarioFile::default().michelson, [0; 4]).unwrap();
+    let shaft = [700, -400, 20_000, 0];
+    let beams = find_beams(&scene.render(&shaft, 3));
+    assert_eq!(beams.len(), 1, "{beams:?}");
+    let truth = scene.truth(&shaft).beam_centres_px[0];
+    assert!(
+        distance(beams[0].centre, truth) < 1.0,
+        "{beams:?} vs {truth:?}"
+    );
+    assert!(beams[0].localised && !beams[0].clipped);
+}
+
+#[test]
+fn a_relay_spot_is_localised_and_a_clipped_beam_is_speckle() {
+    let scene = Relay::new(ScenarioFile::default().relay, [0; 8]).unwrap();
+    let spot = find_beams(&scene.render(&[0; 8], &CameraPose::nominal(Station::C8), 1));
+    assert!(spot[0].localised, "{spot:?}");
+    assert!(distance(spot[0].centre, [320.0, 240.0]) < 1.0, "{spot:?}");
+    // Tilted so that half the beam misses C2's sensor (3.2 mm at 254.4 mm from M1).
+    let halfway = [1300, -1300].map(|steps| {
+        let mut shaft = [0; 8];
+        shaft[1] = steps;
+        find_beams(&scene.render(&shaft, &CameraPose::nominal(Station::C2), 1))
+    });
+    assert!(
+        halfway
+            .iter()
+            .all(|beams| !beams.is_empty() && !beams[0].localised),
+        "{halfway:?}"
+    );
+}
+
+#[test]
+fn cavity_artefacts_cancel_and_the_secondary_shows_in_the_difference() {
+    let scene = Cavity::new(ScenarioFile::default().cavity, [0; 2]).unwrap();
+    let (a, b) = ([2000, 1500], [-1500, 1500]);
+    let moved = changes(&scene.render(&a, 1), &scene.render(&b, 2));
+    assert_eq!(moved.appeared.len(), 1, "{moved:?}");
+    assert_eq!(moved.vanished.len(), 1, "{moved:?}");
+    let truth = |shaft: &[i32]| scene.truth(shaft).secondary_centre_px;
+    assert!(
+        distance(moved.appeared[0].centre, truth(&b)) < 2.0,
+        "{moved:?}"
+    );
+    assert!(
+        distance(moved.vanished[0].centre, truth(&a)) < 2.0,
+        "{moved:?}"
+    );
+}
+
+async fn run(task: TaskKind, seed: u64) -> optalign::run::RunSummary {
+    let scenario = ScenarioFile::default();
+    let limits = scenario.tasks.clone();
+    let mut rig = SimRig::new(task, &scenario, seed, MotorPath::InProcess)
+        .await
+        .unwrap();
+    let brief = TaskBrief {
+        task,
+        limits: limits.clone(),
+        budget: limits.budget(task),
+    };
+    let mut built = build_policy("vision", &brief, &PolicyOptions::default()).unwrap();
+    let options = RunOptions {
+        out_dir: None,
+        seed,
+        ..Default::default()
+    };
+    run_episode(&mut rig, built.policy.as_mut(), None, &limits, &options)
+        .await
+        .unwrap()
+}
+
+#[tokio::test]
+async fn the_vision_agent_aligns_the_michelson() {
+    let summary = run(TaskKind::Michelson, 6).await;
+    assert!(summary.success && summary.declared_done, "{summary:?}");
+    assert!(summary.terminal_error.unwrap() < 10.0, "{summary:?}");
+}
+
+#[tokio::test]
+async fn the_vision_agent_aligns_the_cavity() {
+    let summary = run(TaskKind::Cavity, 0).await;
+    assert!(summary.success && summary.declared_done, "{summary:?}");
+}
+
+#[tokio::test]
+async fn the_vision_agent_aligns_the_relay() {
+    let summary = run(TaskKind::Relay, 9).await;
+    assert!(summary.success && summary.declared_done, "{summary:?}");
+}
