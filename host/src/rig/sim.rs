@@ -208,7 +208,7 @@ impl Rig for SimRig {
                 Score::Cavity(CavityScore {
                     error_steps: truth.error_steps,
                     success: truth.success,
-                    secondary_centre_px: truth.secondary_centre_px,
+                    secondary_centre_px: Some(truth.secondary_centre_px),
                 })
             }
             Scene::Relay { relay, .. } => {

@@ -51,6 +51,7 @@ pub struct CavityScore {
     /// Distance of the true motor positions from the aligned reference, steps.
     pub error_steps: f64,
     pub success: bool,
-    /// Where the secondary beam really is, px (for comparing with the agent's claims).
-    pub secondary_centre_px: [f64; 2],
+    /// Where the secondary beam really is, px (for comparing with the agent's claims);
+    /// unknown on a bench.
+    pub secondary_centre_px: Option<[f64; 2]>,
 }

@@ -1,0 +1,168 @@
+//! `optalign calibrate`: measure a bench's response and backlash from its camera.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::Context;
+use clap::{Args, Subcommand};
+use optalign_protocol::{BacklashMode, Command};
+
+use crate::lab::calibrate::{
+    calibrate_backlash, calibrate_response, write_backlash_chart, write_response_chart,
+};
+use crate::lab::calibration::ResponseCalibration;
+use crate::lab::rigfile::task_axis_names;
+use crate::lab::{LabRig, RigFile};
+
+#[derive(Debug, Args)]
+pub struct CalibrateArgs {
+    #[command(subcommand)]
+    what: Calibration,
+}
+
+#[derive(Debug, Subcommand)]
+enum Calibration {
+    /// Fit one mirror's linear motor-to-pixel response from a grid scan.
+    Response {
+        /// The bench's rig file.
+        #[arg(long, value_name = "FILE")]
+        rig: PathBuf,
+        /// Mirror number (Michelson 1-2, cavity 1, relay 1-4).
+        #[arg(long)]
+        mirror: usize,
+        /// Half-width of the scan around the current position, steps.
+        #[arg(long, default_value_t = 1500)]
+        span: i32,
+        /// Grid points per axis.
+        #[arg(long, default_value_t = 3)]
+        grid: usize,
+        /// Calibration file to add the mirror to (default: the rig file's
+        /// scoring.michelson_calibration, else response-calibration.json beside the rig file).
+        #[arg(long, value_name = "FILE")]
+        out: Option<PathBuf>,
+    },
+    /// Fit an axis's backlash from the hysteresis of the beam position.
+    Backlash {
+        #[arg(long, value_name = "FILE")]
+        rig: PathBuf,
+        /// Task axis name (as in the rig file's [axes] table).
+        #[arg(long)]
+        axis: String,
+        /// How far the loop goes each way, steps.
+        #[arg(long, default_value_t = 300)]
+        amplitude: i32,
+        /// Step between images, steps.
+        #[arg(long, default_value_t = 10)]
+        step: i32,
+        /// Write the fitted backlash into the controller's configuration and save it.
+        #[arg(long)]
+        write: bool,
+    },
+}
+
+pub async fn run(args: CalibrateArgs) -> anyhow::Result<()> {
+    match args.what {
+        Calibration::Response {
+            rig,
+            mirror,
+            span,
+            grid,
+            out,
+        } => {
+            let file = RigFile::load(&rig)?;
+            let out = out
+                .or_else(|| file.scoring.michelson_calibration.clone())
+                .unwrap_or_else(|| beside(&rig, "response-calibration.json"));
+            let mut bench = LabRig::connect(file).await?;
+            let (response, points) = calibrate_response(&mut bench, mirror, span, grid).await?;
+            let frame = bench.capture().await?;
+            let mut calibration = ResponseCalibration::load_or_new(&out)?;
+            calibration.image_size_px = [frame.width(), frame.height()];
+            let m = response.matrix_px_per_step;
+            println!(
+                "mirror {mirror}: [[{:.4}, {:.4}], [{:.4}, {:.4}]] px/step, centre ({:.1}, {:.1}) px at {:?} steps, residual {:.2} px RMS over {} images",
+                m[0][0],
+                m[0][1],
+                m[1][0],
+                m[1][1],
+                response.centre_px[0],
+                response.centre_px[1],
+                response.reference_steps,
+                response.residual_rms_px,
+                response.points
+            );
+            calibration.set(response);
+            calibration.save(&out)?;
+            let charts =
+                write_response_chart(out.parent().unwrap_or(Path::new(".")), mirror, &points)?;
+            println!("wrote {} and {}", out.display(), charts[0].display());
+        }
+        Calibration::Backlash {
+            rig,
+            axis,
+            amplitude,
+            step,
+            write,
+        } => {
+            let file = RigFile::load(&rig)?;
+            let names = task_axis_names(file.task);
+            let index = names.iter().position(|n| *n == axis).with_context(|| {
+                format!(
+                    "--axis {axis}: not an axis of the {} task; use one of {}",
+                    file.task,
+                    names.join(", ")
+                )
+            })?;
+            let mut bench = LabRig::connect(file).await?;
+            let report = calibrate_backlash(&mut bench, index, amplitude, step).await?;
+            let fit = &report.fit;
+            println!(
+                "{axis}: backlash {:.1} ± {:.1} steps (response {:.4} px/step, residual {:.2} px RMS)",
+                fit.backlash, fit.uncertainty, fit.gain, fit.residual_rms
+            );
+            let charts =
+                write_backlash_chart(rig.parent().unwrap_or(Path::new(".")), &axis, &report)?;
+            println!("chart: {}", charts[0].display());
+            let (client, controller_axis) = bench.controller_axis(index);
+            let steps = fit.backlash.round() as u16;
+            if write {
+                let mut config = client.get_config(controller_axis).await?;
+                config.backlash = steps;
+                if config.backlash_mode == BacklashMode::Off {
+                    config.backlash_mode = BacklashMode::OneSided;
+                }
+                client
+                    .command_ok(Command::SetConfig {
+                        axis: controller_axis,
+                        config,
+                    })
+                    .await?;
+                client.command_ok(Command::SaveConfig).await?;
+                println!(
+                    "wrote backlash {steps} into the controller's axis {controller_axis} and saved it"
+                );
+            } else {
+                println!(
+                    "to use it: rerun with --write, or `optalign config --controller URL set {controller_axis} backlash={steps} --save`"
+                );
+            }
+        }
+    }
+    Ok(())
+}
+
+fn beside(file: &Path, name: &str) -> PathBuf {
+    file.parent().unwrap_or(Path::new(".")).join(name)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn outputs_default_beside_the_rig_file() {
+        assert_eq!(
+            beside(Path::new("benches/a.toml"), "x.json"),
+            PathBuf::from("benches/x.json")
+        );
+    }
+}

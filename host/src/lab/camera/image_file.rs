@@ -1,0 +1,57 @@
+//! Reading an image file written by a camera's own software into a grayscale frame.
+
+use std::path::Path;
+
+use anyhow::Context;
+use optalign_optics::Frame;
+
+/// Decodes PNG, JPEG or TIFF (colour is converted to luminance).
+pub fn decode_image(path: &Path) -> anyhow::Result<Frame> {
+    let bytes =
+        std::fs::read(path).with_context(|| format!("cannot read image {}", path.display()))?;
+    anyhow::ensure!(
+        !bytes.is_empty(),
+        "image {} is empty (the camera wrote nothing)",
+        path.display()
+    );
+    let image = image::load_from_memory(&bytes)
+        .with_context(|| format!("{} is not a PNG, JPEG or TIFF image", path.display()))?
+        .into_luma8();
+    let (width, height) = image.dimensions();
+    anyhow::ensure!(
+        width > 0 && height > 0,
+        "image {} has no pixels",
+        path.display()
+    );
+    Ok(Frame::new(width, height, image.into_raw())?)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn reads_png_and_refuses_empty_or_garbage_files() {
+        let dir = tempfile::tempdir().unwrap();
+        let png = dir.path().join("a.png");
+        let frame = Frame::new(3, 2, vec![0, 50, 100, 150, 200, 250]).unwrap();
+        std::fs::write(&png, frame.encode_png().unwrap()).unwrap();
+        assert_eq!(decode_image(&png).unwrap(), frame);
+        let empty = dir.path().join("empty.png");
+        std::fs::write(&empty, b"").unwrap();
+        assert!(
+            decode_image(&empty)
+                .unwrap_err()
+                .to_string()
+                .contains("empty")
+        );
+        let junk = dir.path().join("junk.png");
+        std::fs::write(&junk, b"not an image").unwrap();
+        assert!(
+            decode_image(&junk)
+                .unwrap_err()
+                .to_string()
+                .contains("not a PNG")
+        );
+    }
+}

@@ -1,0 +1,13 @@
+//! The lab: rig files, cameras, camera movers, the lab rig that runs tasks on a real bench,
+//! bench scoring without hidden truth, and calibration from the camera.
+
+pub mod calibrate;
+pub mod calibration;
+pub mod camera;
+pub mod mover;
+pub mod rig;
+pub mod rigfile;
+mod scoring;
+
+pub use rig::LabRig;
+pub use rigfile::RigFile;

@@ -1,0 +1,102 @@
+//! The command mover: runs a configured command per move, for any robot arm with a CLI or
+//! a script. `{station}` in the arguments becomes C1..C8; success means the camera is there.
+
+use std::time::Duration;
+
+use anyhow::{Context, bail};
+use async_trait::async_trait;
+use optalign_optics::Station;
+
+use super::CameraMover;
+
+pub struct CommandMover {
+    argv: Vec<String>,
+    timeout: Duration,
+}
+
+impl CommandMover {
+    pub fn new(argv: Vec<String>, timeout: Duration) -> Self {
+        Self { argv, timeout }
+    }
+}
+
+#[async_trait]
+impl CameraMover for CommandMover {
+    async fn move_to(&mut self, station: Station) -> anyhow::Result<()> {
+        let name = station.to_string();
+        let args: Vec<String> = self
+            .argv
+            .iter()
+            .map(|a| a.replace("{station}", &name))
+            .collect();
+        let mut command = tokio::process::Command::new(&args[0]);
+        command
+            .args(&args[1..])
+            .kill_on_drop(true)
+            .stdin(std::process::Stdio::null());
+        let output = tokio::time::timeout(self.timeout, command.output())
+            .await
+            .with_context(|| {
+                format!(
+                    "camera mover {:?} did not reach {station} within {:?}",
+                    args[0], self.timeout
+                )
+            })?
+            .with_context(|| format!("cannot run camera mover {:?}", args[0]))?;
+        if !output.status.success() {
+            bail!(
+                "camera mover {:?} failed to reach {station} ({}): {}",
+                args[0],
+                output.status,
+                String::from_utf8_lossy(&output.stderr).trim()
+            );
+        }
+        Ok(())
+    }
+
+    fn describe(&self) -> String {
+        format!(
+            "command mover {:?}",
+            self.argv.first().map(String::as_str).unwrap_or("")
+        )
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[tokio::test]
+    async fn substitutes_the_station_and_reports_failures() {
+        let dir = tempfile::tempdir().unwrap();
+        let log = dir.path().join("log");
+        let script = format!("echo $1 >> {}", log.display());
+        let mut mover = CommandMover::new(
+            vec![
+                "sh".into(),
+                "-c".into(),
+                script,
+                "arm".into(),
+                "{station}".into(),
+            ],
+            Duration::from_secs(5),
+        );
+        mover.move_to(Station::C3).await.unwrap();
+        mover.move_to(Station::C8).await.unwrap();
+        assert_eq!(std::fs::read_to_string(&log).unwrap(), "C3\nC8\n");
+        let mut failing = CommandMover::new(
+            vec![
+                "sh".into(),
+                "-c".into(),
+                "echo jammed >&2; exit 3".into(),
+                "{station}".into(),
+            ],
+            Duration::from_secs(5),
+        );
+        let error = failing.move_to(Station::C1).await.unwrap_err().to_string();
+        assert!(
+            error.contains("failed to reach C1") && error.contains("jammed"),
+            "{error}"
+        );
+    }
+}

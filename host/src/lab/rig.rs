@@ -1,0 +1,405 @@
+//! The lab rig: the `Rig` trait on a real bench (or the simulated bench behind the same
+//! code path). Motor moves go to the rig file's controllers over the protocol, the camera
+//! mover places the camera, the camera takes the image after the settle time.
+//!
+//! Visible motor settings start at 0: the controllers' positions when the run starts are
+//! the origin of the task's commands, as in the paper.
+
+use std::sync::Arc;
+use std::time::Duration;
+
+use anyhow::{Context, bail};
+use async_trait::async_trait;
+use optalign_optics::seeds::{cavity_offsets, michelson_offsets, relay_offsets};
+use optalign_optics::{Cavity, Frame, Michelson, Relay, Station};
+use optalign_protocol::{AxisValue, MoveOutcome, auth};
+
+use super::camera::{Camera, CommandCamera, FolderCamera, SimCamera, SimScene, SimView};
+use super::mover::{CameraMover, CommandMover, HttpMover, ManualMover, SimMover};
+use super::rigfile::{AxisRoute, CameraSpec, MoverSpec, RigFile};
+use super::scoring::LabScorer;
+use crate::link::{Client, ClientOptions, Endpoint};
+use crate::peer::{SimPeer, registry};
+use crate::rig::{Executed, Rig, Score};
+use crate::scenario::ScenarioFile;
+use crate::task::relay::{RelayAction, axis_of};
+use crate::task::{Action, TaskKind};
+
+/// A bench described by a rig file.
+pub struct LabRig {
+    rig: RigFile,
+    controllers: Vec<Client>,
+    routes: Vec<AxisRoute>,
+    /// Controller positions of every task axis when the run started.
+    origin: Vec<i32>,
+    /// Visible (task) settings commanded so far.
+    commanded: Vec<i32>,
+    camera: Box<dyn Camera>,
+    mover: Option<Box<dyn CameraMover>>,
+    station: Station,
+    scorer: LabScorer,
+}
+
+impl LabRig {
+    /// Connects every controller, checks the camera works and that the bench can be
+    /// scored, before anything moves.
+    pub async fn connect(rig: RigFile) -> anyhow::Result<Self> {
+        LabScorer::check(&rig)?;
+        Self::connect_unscored(rig).await
+    }
+
+    /// Like [`connect`](Self::connect) without the scoring check: for calibrating a bench
+    /// before it has the calibration it will be scored with.
+    pub async fn connect_unscored(rig: RigFile) -> anyhow::Result<Self> {
+        let mut controllers = Vec::new();
+        for spec in &rig.controllers {
+            let endpoint: Endpoint = spec
+                .url
+                .parse()
+                .with_context(|| format!("controller {:?}", spec.name))?;
+            let key = std::env::var(&spec.key_env).ok();
+            if key.is_none() && !endpoint.is_serial() {
+                bail!(
+                    "controller {:?} ({endpoint}) needs its access key in the environment variable {} (set key_env in the rig file to use another)",
+                    spec.name,
+                    spec.key_env
+                );
+            }
+            let options = ClientOptions {
+                key: key.as_deref().map(auth::derive_key),
+                ..ClientOptions::default()
+            };
+            let client = Client::connect(endpoint, options).await.with_context(|| {
+                format!(
+                    "controller {:?} is unreachable; nothing was moved",
+                    spec.name
+                )
+            })?;
+            controllers.push(client);
+        }
+        let routes = rig.routes();
+        for (route, name) in routes.iter().zip(super::rigfile::task_axis_names(rig.task)) {
+            let axes = controllers[route.controller].identity().axes;
+            if route.axis >= axes {
+                bail!(
+                    "axes.{name}: controller {:?} has axes 0..={}, not {}",
+                    rig.controllers[route.controller].name,
+                    axes.saturating_sub(1),
+                    route.axis
+                );
+            }
+        }
+        let origin = read_positions(&controllers, &routes).await?;
+        let (mut camera, sim_view) = open_camera(&rig, &controllers, &routes)?;
+        let probe = camera.capture().await.with_context(|| {
+            format!(
+                "the camera ({}) returned no image; nothing was moved",
+                camera.describe()
+            )
+        })?;
+        tracing::info!(
+            camera = camera.describe(),
+            width = probe.width(),
+            height = probe.height(),
+            "camera ready"
+        );
+        let mover = open_mover(&rig, sim_view)?;
+        let scorer = LabScorer::new(&rig);
+        Ok(Self {
+            commanded: vec![0; routes.len()],
+            controllers,
+            routes,
+            origin,
+            camera,
+            mover,
+            station: Station::C8,
+            scorer,
+            rig,
+        })
+    }
+
+    /// Moves task axes: absolute visible settings, or relative deltas.
+    async fn move_axes(&mut self, values: &[(usize, i32)], relative: bool) -> anyhow::Result<f64> {
+        let mut per_controller: Vec<Vec<AxisValue>> = vec![Vec::new(); self.controllers.len()];
+        for &(task_axis, value) in values {
+            let route = &self.routes[task_axis];
+            let visible = if relative {
+                self.commanded[task_axis] + value
+            } else {
+                value
+            };
+            if visible == self.commanded[task_axis] {
+                continue;
+            }
+            let target = self.origin[task_axis] + route.sign * visible;
+            per_controller[route.controller].push(AxisValue {
+                axis: route.axis,
+                steps: target,
+            });
+            self.commanded[task_axis] = visible;
+        }
+        let moves = self
+            .controllers
+            .iter()
+            .zip(&per_controller)
+            .filter(|(_, targets)| !targets.is_empty())
+            .map(|(client, targets)| client.move_to(targets));
+        let reports = futures::future::join_all(moves).await;
+        let mut seconds: f64 = 0.0;
+        for report in reports {
+            let report = report?;
+            if report.outcome != MoveOutcome::Completed {
+                bail!(
+                    "a motor move ended early ({:?}); check the mount and the controller",
+                    report.outcome
+                );
+            }
+            seconds = seconds.max(f64::from(report.duration_ms) / 1000.0);
+        }
+        if seconds > 0.0 {
+            tokio::time::sleep(Duration::from_secs_f64(self.rig.settle.after_motor_s)).await;
+        }
+        Ok(seconds)
+    }
+
+    /// Moves task axes to absolute visible settings.
+    pub async fn move_to(&mut self, values: &[(usize, i32)]) -> anyhow::Result<f64> {
+        self.move_axes(values, false).await
+    }
+
+    /// Visible settings commanded so far (0 at the start of the run).
+    pub fn commanded(&self) -> &[i32] {
+        &self.commanded
+    }
+
+    /// Task-axis positions: controller positions with the rig's inversion applied.
+    pub fn task_positions(&self) -> Vec<f64> {
+        self.routes
+            .iter()
+            .zip(self.origin.iter().zip(&self.commanded))
+            .map(|(route, (origin, commanded))| f64::from(route.sign * origin + commanded))
+            .collect()
+    }
+
+    /// The controller and controller axis behind task axis `axis`.
+    pub fn controller_axis(&self, axis: usize) -> (&Client, u8) {
+        let route = &self.routes[axis];
+        (&self.controllers[route.controller], route.axis)
+    }
+
+    /// Takes an image now (no settling).
+    pub async fn capture(&mut self) -> anyhow::Result<Frame> {
+        let frame = self
+            .camera
+            .capture()
+            .await
+            .with_context(|| format!("the camera ({}) failed", self.camera.describe()))?;
+        self.scorer.observe(self.station, &frame);
+        Ok(frame)
+    }
+}
+
+async fn read_positions(controllers: &[Client], routes: &[AxisRoute]) -> anyhow::Result<Vec<i32>> {
+    let mut statuses = Vec::new();
+    for client in controllers {
+        statuses.push(client.status().await?);
+    }
+    Ok(routes
+        .iter()
+        .map(|route| statuses[route.controller].axes[usize::from(route.axis)].position)
+        .collect())
+}
+
+/// The simulated peers behind every controller URL (for the simulated camera).
+fn sim_peers(rig: &RigFile, controllers: &[Client]) -> anyhow::Result<Vec<Arc<SimPeer>>> {
+    controllers
+        .iter()
+        .zip(&rig.controllers)
+        .map(|(client, spec)| {
+            let peer = match client.endpoint() {
+                Endpoint::Tcp { host, port } => format!("{host}:{port}").parse().ok().and_then(registry::lookup),
+                Endpoint::Serial { .. } => None,
+            };
+            peer.with_context(|| {
+                format!(
+                    "camera kind \"sim\" needs a simulated peer running in this process behind controller {:?} ({}); start it with `optalign run --rig` from a test or use a real camera",
+                    spec.name, spec.url
+                )
+            })
+        })
+        .collect()
+}
+
+/// A camera, and the simulated view behind it when it is simulated (for the mover).
+type OpenedCamera = (Box<dyn Camera>, Option<Arc<SimView>>);
+
+fn open_camera(
+    rig: &RigFile,
+    controllers: &[Client],
+    routes: &[AxisRoute],
+) -> anyhow::Result<OpenedCamera> {
+    Ok(match &rig.camera {
+        CameraSpec::Command { argv, timeout_s } => (
+            Box::new(CommandCamera::new(
+                argv.clone(),
+                Duration::from_secs_f64(*timeout_s),
+            )?),
+            None,
+        ),
+        CameraSpec::Folder { path, timeout_s } => (
+            Box::new(FolderCamera::new(
+                path.clone(),
+                Duration::from_secs_f64(*timeout_s),
+            )?),
+            None,
+        ),
+        #[cfg(feature = "v4l2")]
+        CameraSpec::V4l2 {
+            device,
+            exposure,
+            gain,
+            discard_frames,
+            average,
+        } => (
+            Box::new(super::camera::V4l2Camera::open(
+                device,
+                *exposure,
+                *gain,
+                *discard_frames,
+                *average,
+            )?),
+            None,
+        ),
+        #[cfg(not(feature = "v4l2"))]
+        CameraSpec::V4l2 { device, .. } => bail!(
+            "camera {}: this optalign was built without V4L2 support; rebuild with `--features v4l2` (needs libclang) or use a command or folder camera",
+            device.display()
+        ),
+        CameraSpec::Sim { seed, scenario } => {
+            let scenario = ScenarioFile::load_or_default(scenario.as_deref())?;
+            let scene = match rig.task {
+                TaskKind::Michelson => SimScene::Michelson(Michelson::new(
+                    scenario.michelson.clone(),
+                    michelson_offsets(&scenario.michelson, *seed),
+                )?),
+                TaskKind::Cavity => SimScene::Cavity(Cavity::new(
+                    scenario.cavity.clone(),
+                    cavity_offsets(&scenario.cavity, *seed),
+                )?),
+                TaskKind::Relay => SimScene::Relay(Box::new(Relay::new(
+                    scenario.relay.clone(),
+                    relay_offsets(&scenario.relay, *seed)?,
+                )?)),
+            };
+            let view = Arc::new(SimView::new(scene, *seed));
+            let camera =
+                SimCamera::new(view.clone(), sim_peers(rig, controllers)?, routes.to_vec());
+            (Box::new(camera), Some(view))
+        }
+    })
+}
+
+fn open_mover(
+    rig: &RigFile,
+    sim_view: Option<Arc<SimView>>,
+) -> anyhow::Result<Option<Box<dyn CameraMover>>> {
+    Ok(match &rig.mover {
+        None => None,
+        Some(MoverSpec::Command { argv, timeout_s }) => Some(Box::new(CommandMover::new(
+            argv.clone(),
+            Duration::from_secs_f64(*timeout_s),
+        ))),
+        Some(MoverSpec::Http { url, timeout_s }) => Some(Box::new(HttpMover::new(
+            url.clone(),
+            Duration::from_secs_f64(*timeout_s),
+        )?)),
+        Some(MoverSpec::Manual) => Some(Box::new(ManualMover)),
+        Some(MoverSpec::Sim) => {
+            let view = sim_view.context("mover kind \"sim\" needs camera kind \"sim\"")?;
+            Some(Box::new(SimMover(view)))
+        }
+    })
+}
+
+#[async_trait]
+impl Rig for LabRig {
+    fn task(&self) -> TaskKind {
+        self.rig.task
+    }
+
+    async fn initial_image(&mut self) -> anyhow::Result<Frame> {
+        self.capture().await
+    }
+
+    async fn execute(&mut self, action: &Action) -> anyhow::Result<Executed> {
+        let mut camera_time_s = 0.0;
+        let motor_time_s = match action {
+            Action::Michelson { command, .. } => {
+                let values: Vec<(usize, i32)> = command.iter().copied().enumerate().collect();
+                self.move_axes(&values, false).await?
+            }
+            Action::Cavity { command, .. } => {
+                let values: Vec<(usize, i32)> = command.iter().copied().enumerate().collect();
+                self.move_axes(&values, false).await?
+            }
+            Action::Relay(RelayAction::Tilt {
+                mirror,
+                vertical,
+                horizontal,
+            }) => {
+                self.scorer.adjusted(usize::from(*mirror));
+                let values = [
+                    (axis_of(*mirror, false), *vertical),
+                    (axis_of(*mirror, true), *horizontal),
+                ];
+                self.move_axes(&values, true).await?
+            }
+            Action::Relay(RelayAction::TiltAll { deltas }) => {
+                for (axis, delta) in deltas.iter().enumerate() {
+                    if *delta != 0 {
+                        self.scorer.adjusted(axis / 2);
+                    }
+                }
+                let values: Vec<(usize, i32)> = deltas.iter().copied().enumerate().collect();
+                self.move_axes(&values, true).await?
+            }
+            Action::Relay(RelayAction::Measure { station }) => {
+                if *station != self.station {
+                    let mover = self
+                        .mover
+                        .as_mut()
+                        .context("this rig has no camera mover")?;
+                    let started = tokio::time::Instant::now();
+                    mover.move_to(*station).await.with_context(|| {
+                        format!("moving the camera to {station} ({})", mover.describe())
+                    })?;
+                    tokio::time::sleep(Duration::from_secs_f64(self.rig.settle.after_camera_s))
+                        .await;
+                    camera_time_s = started.elapsed().as_secs_f64();
+                    self.station = *station;
+                }
+                0.0
+            }
+            Action::Relay(RelayAction::Done) => 0.0,
+        };
+        let started = tokio::time::Instant::now();
+        let image = self.capture().await?;
+        camera_time_s += started.elapsed().as_secs_f64();
+        Ok(Executed {
+            image,
+            motor_time_s,
+            camera_time_s,
+        })
+    }
+
+    fn score(&self) -> Score {
+        let controller_positions: Vec<f64> = self
+            .routes
+            .iter()
+            .zip(self.origin.iter().zip(&self.commanded))
+            .map(|(route, (origin, commanded))| f64::from(origin + route.sign * commanded))
+            .collect();
+        self.scorer
+            .score(&self.task_positions(), &controller_positions)
+    }
+}
