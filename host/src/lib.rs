@@ -2,7 +2,11 @@
 //! tasks, rigs, policies, the run loop and the command-line front end. The `optalign`
 //! binary is a thin wrapper around [`cli`].
 
+pub mod bench;
 pub mod cli;
+pub mod flash;
+pub mod imaging;
+pub mod lab;
 pub mod link;
 pub mod logging;
 pub mod peer;

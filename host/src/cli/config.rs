@@ -78,11 +78,16 @@ pub async fn run(args: ConfigArgs) -> anyhow::Result<()> {
             for field in &fields {
                 apply_field(&mut config, field)?;
             }
+            let explain = |e| args.controller.explain(e);
             client
                 .command_ok(Command::SetConfig { axis, config })
-                .await?;
+                .await
+                .map_err(explain)?;
             if save {
-                client.command_ok(Command::SaveConfig).await?;
+                client
+                    .command_ok(Command::SaveConfig)
+                    .await
+                    .map_err(explain)?;
             }
             println!(
                 "axis {axis}: {}{}",

@@ -6,7 +6,8 @@ use anyhow::Context;
 use clap::Args;
 use optalign_protocol::auth;
 
-use crate::link::{Client, ClientOptions, Endpoint};
+use crate::link::{Client, ClientError, ClientOptions, Endpoint};
+use optalign_protocol::ErrorCode;
 
 /// Where the controller is and how to authenticate.
 #[derive(Debug, Args)]
@@ -32,5 +33,25 @@ impl ControllerArgs {
         Client::connect(self.controller.clone(), options)
             .await
             .with_context(|| format!("connecting to {}", self.controller))
+    }
+
+    /// Adds what the user can do about a refusal (a missing key, say) to a client error.
+    pub fn explain(&self, error: ClientError) -> anyhow::Error {
+        let hint = match error.code() {
+            Some(ErrorCode::UNAUTHORIZED) if self.key.is_none() => Some(
+                "this controller needs its access key for motion and configuration over the network: set OPTALIGN_KEY or pass --key",
+            ),
+            Some(ErrorCode::OUT_OF_LIMITS) => Some(
+                "see the axis limits with `optalign status` or change them with `optalign config set AXIS min=.. max=..`",
+            ),
+            Some(ErrorCode::EMERGENCY_STOPPED) => {
+                Some("the emergency stop is latched; the next accepted move clears it")
+            }
+            _ => None,
+        };
+        match hint {
+            Some(hint) => anyhow::Error::new(error).context(hint),
+            None => error.into(),
+        }
     }
 }

@@ -1,12 +1,17 @@
 //! The command line: one subcommand per job, each in its own module.
 
 mod axes;
+mod bench;
+mod calibrate;
 mod config;
 mod connect;
+mod demo;
+mod flash;
 mod motion;
 mod peer;
 mod provision;
 mod render;
+mod replay;
 mod run;
 mod status;
 
@@ -37,10 +42,23 @@ enum Commands {
     Config(config::ConfigArgs),
     /// Give a controller Wi-Fi credentials and its access key over USB serial.
     Provision(provision::ProvisionArgs),
+    /// Turn the firmware into a UF2 image and copy it onto a board in BOOTSEL mode.
+    Flash(flash::FlashArgs),
+    /// Calibrate a bench from its camera: a mirror's response or an axis's backlash.
+    Calibrate(calibrate::CalibrateArgs),
     /// Write one camera frame of a simulated scene.
     Render(render::RenderArgs),
     /// Run one alignment task with one policy.
     Run(run::RunArgs),
+    /// Run the task x policy x seed matrix on simulated rigs; write results, summary, charts.
+    Bench(bench::BenchArgs),
+    /// Align all three simulated tasks through the simulated firmware; write an HTML report.
+    Demo(demo::DemoArgs),
+    /// Re-run a recorded vlm run's replies on the simulator, without calling the model.
+    Replay(replay::ReplayArgs),
+    /// Serve a local OpenAI-compatible test server (request checks, scripted answers).
+    #[command(hide = true)]
+    FakeLlm(crate::policy::vlm::fake::FakeLlmArgs),
 }
 
 impl Cli {
@@ -52,8 +70,14 @@ impl Cli {
             Commands::Stop(args) => motion::run_stop(args).await,
             Commands::Config(args) => config::run(args).await,
             Commands::Provision(args) => provision::run(args).await,
+            Commands::Flash(args) => flash::run(args),
+            Commands::Calibrate(args) => calibrate::run(args).await,
             Commands::Render(args) => render::run(args),
             Commands::Run(args) => run::run(args).await,
+            Commands::Bench(args) => bench::run(args).await,
+            Commands::Demo(args) => demo::run(args).await,
+            Commands::Replay(args) => replay::run(args).await,
+            Commands::FakeLlm(args) => crate::policy::vlm::fake::run_cli(args).await,
         }
     }
 }

@@ -23,10 +23,11 @@ pub async fn run_move(args: MoveArgs) -> anyhow::Result<()> {
     let client = args.controller.connect().await?;
     check_axes(&args.targets, client.identity().axes)?;
     let report = if args.relative {
-        client.move_by(&args.targets).await?
+        client.move_by(&args.targets).await
     } else {
-        client.move_to(&args.targets).await?
-    };
+        client.move_to(&args.targets).await
+    }
+    .map_err(|e| args.controller.explain(e))?;
     let positions: Vec<String> = report
         .positions
         .iter()
@@ -54,10 +55,16 @@ pub struct StopArgs {
 pub async fn run_stop(args: StopArgs) -> anyhow::Result<()> {
     let client = args.controller.connect().await?;
     if args.emergency {
-        client.command_ok(Command::EmergencyStop).await?;
+        client
+            .command_ok(Command::EmergencyStop)
+            .await
+            .map_err(|e| args.controller.explain(e))?;
         println!("emergency stop: all axes stopped, coils off; the next move clears the latch");
     } else {
-        client.command_ok(Command::Stop).await?;
+        client
+            .command_ok(Command::Stop)
+            .await
+            .map_err(|e| args.controller.explain(e))?;
         println!("stop: all axes decelerating to rest");
     }
     Ok(())

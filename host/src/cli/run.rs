@@ -1,25 +1,36 @@
-//! `optalign run`: one alignment run of one task with one policy on a simulated rig.
+//! `optalign run`: one alignment run of one task with one policy, on a simulated rig
+//! (`--sim`) or a bench described by a rig file (`--rig`).
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
+use anyhow::Context;
 use clap::Args;
 
+use crate::lab::{LabRig, RigFile};
+use crate::policy::vlm::{self, ReasoningEffort, VlmOptions};
 use crate::policy::{PolicyOptions, TaskBrief, build_policy};
-use crate::rig::{MotorPath, SimRig};
+use crate::rig::{MotorPath, Rig, SimRig};
 use crate::run::{RunOptions, run_dir, run_episode};
 use crate::scenario::ScenarioFile;
 use crate::task::TaskKind;
+
+/// The file in a run folder that records the scenario the run used (read by `replay`).
+pub const SCENARIO_FILE: &str = "scenario.toml";
 
 #[derive(Debug, Args)]
 pub struct RunArgs {
     /// Which task.
     task: TaskKind,
-    /// Who decides (see `optalign run --help`): manual = you, at a prompt.
+    /// Who decides: manual = you, at a prompt; random and bo = the paper's baselines;
+    /// vlm = a vision-language model over a chat API (needs --model).
     #[arg(long, default_value = "manual")]
     policy: String,
     /// Run on the simulated scene (no hardware).
-    #[arg(long, required = true)]
+    #[arg(long, required_unless_present = "rig", conflicts_with = "rig")]
     sim: bool,
+    /// Run on the bench described by this rig file (controllers, camera, camera mover).
+    #[arg(long, value_name = "FILE")]
+    rig: Option<PathBuf>,
     /// Seed number: selects the hidden initial misalignment.
     #[arg(long, default_value_t = 0)]
     seed: u64,
@@ -32,20 +43,120 @@ pub struct RunArgs {
     /// How motor commands reach the simulated firmware.
     #[arg(long, value_enum, default_value = "in-process")]
     motors: MotorPath,
+    #[command(flatten)]
+    vlm: VlmArgs,
+}
+
+/// Settings of the vision-language-model policy (`--policy vlm`).
+#[derive(Debug, Args)]
+#[command(next_help_heading = "Vision-language model (--policy vlm)")]
+pub struct VlmArgs {
+    /// Model id at the endpoint, e.g. openai/gpt-5.6-sol on OpenRouter.
+    #[arg(long)]
+    model: Option<String>,
+    /// OpenAI-compatible base URL: OpenRouter, https://api.openai.com/v1, or a local
+    /// server such as http://127.0.0.1:8000/v1 (vLLM) or http://127.0.0.1:11434/v1 (Ollama).
+    #[arg(long, default_value = vlm::DEFAULT_BASE_URL)]
+    base_url: String,
+    /// Environment variable holding the API key (a loopback server may need none).
+    #[arg(long, default_value = vlm::DEFAULT_API_KEY_ENV, value_name = "NAME")]
+    api_key_env: String,
+    /// Reasoning effort; "off" sends no reasoning setting at all.
+    #[arg(long, value_enum, default_value = "high")]
+    reasoning_effort: ReasoningEffort,
+    /// Output-token limit per reply [default: 20000 for michelson and cavity, 12000 for relay].
+    #[arg(long)]
+    max_tokens: Option<u32>,
+    /// Sampling temperature [default: the provider's].
+    #[arg(long)]
+    temperature: Option<f64>,
+    /// Time allowed for one model request, s.
+    #[arg(long, default_value_t = 300.0)]
+    timeout_s: f64,
+    /// Frames are downscaled so their longer side is at most this, px.
+    #[arg(long, default_value_t = vlm::image::DEFAULT_MAX_SIDE)]
+    max_image_side: u32,
+    /// Send only the newest N images (for models with a small context) [default: all].
+    #[arg(long, value_name = "N")]
+    keep_images: Option<usize>,
+    /// A system-prompt template replacing the built-in one ({{placeholders}} are filled
+    /// from the scenario's bounds).
+    #[arg(long, value_name = "FILE")]
+    prompt: Option<PathBuf>,
+}
+
+impl VlmArgs {
+    /// The VLM settings, when a model was named.
+    pub fn options(&self) -> Option<VlmOptions> {
+        let model = self.model.as_ref()?;
+        Some(VlmOptions {
+            model: model.clone(),
+            base_url: self.base_url.clone(),
+            api_key_env: self.api_key_env.clone(),
+            reasoning_effort: self.reasoning_effort,
+            max_tokens: self.max_tokens,
+            temperature: self.temperature,
+            timeout_s: self.timeout_s,
+            max_image_side: self.max_image_side,
+            keep_images: self.keep_images,
+            prompt: self.prompt.clone(),
+            ..VlmOptions::default()
+        })
+    }
+}
+
+/// Records the scenario a run used in its folder.
+pub fn record_scenario(dir: &Path, scenario: &ScenarioFile) -> anyhow::Result<()> {
+    std::fs::create_dir_all(dir)
+        .with_context(|| format!("cannot create run folder {}", dir.display()))?;
+    let path = dir.join(SCENARIO_FILE);
+    let text = toml::to_string(scenario).context("cannot write the scenario as TOML")?;
+    std::fs::write(&path, text).with_context(|| format!("cannot write {}", path.display()))
 }
 
 pub async fn run(args: RunArgs) -> anyhow::Result<()> {
     let scenario = ScenarioFile::load_or_default(args.scenario.as_deref())?;
+    let bench = args.rig.as_deref().map(RigFile::load).transpose()?;
+    if let Some(bench) = &bench {
+        anyhow::ensure!(
+            bench.task == args.task,
+            "the rig file is set up for the {} task, not {}",
+            bench.task,
+            args.task
+        );
+    }
+    let limits = bench
+        .as_ref()
+        .map_or_else(|| scenario.tasks.clone(), |b| b.limits.clone());
     let brief = TaskBrief {
         task: args.task,
-        limits: scenario.tasks.clone(),
-        budget: scenario.tasks.budget(args.task),
+        limits: limits.clone(),
+        budget: limits.budget(args.task),
     };
-    let mut built = build_policy(&args.policy, &brief, &PolicyOptions { seed: args.seed })?;
+    let vlm = args.vlm.options();
+    if vlm.is_some() && args.policy != "vlm" {
+        anyhow::bail!("--model applies to --policy vlm only");
+    }
+    let mut built = build_policy(
+        &args.policy,
+        &brief,
+        &PolicyOptions {
+            seed: args.seed,
+            vlm: vlm.clone(),
+        },
+    )?;
+    if let Some(vlm) = &vlm {
+        let estimate = vlm::estimate_cost(args.task, &scenario, vlm, None)?;
+        eprintln!("model use if the whole budget is spent: {estimate}");
+    }
     let out = args
         .out
         .unwrap_or_else(|| run_dir(&PathBuf::from("runs"), args.task, &args.policy, args.seed));
-    let mut rig = SimRig::new(args.task, &scenario, args.seed, args.motors).await?;
+    record_scenario(&out, &scenario)?;
+    let mut rig: Box<dyn Rig> = match bench {
+        Some(bench) => Box::new(LabRig::connect(bench).await?),
+        None => Box::new(SimRig::new(args.task, &scenario, args.seed, args.motors).await?),
+    };
     let options = RunOptions {
         out_dir: Some(out.clone()),
         seed: args.seed,
@@ -53,10 +164,10 @@ pub async fn run(args: RunArgs) -> anyhow::Result<()> {
     };
     eprintln!("run folder: {}", out.display());
     let summary = run_episode(
-        &mut rig,
+        rig.as_mut(),
         built.policy.as_mut(),
         built.objective.as_ref(),
-        &scenario.tasks,
+        &limits,
         &options,
     )
     .await?;
@@ -79,6 +190,9 @@ pub async fn run(args: RunArgs) -> anyhow::Result<()> {
             .map(|f| format!(" ({f})"))
             .unwrap_or_default(),
     );
+    if let Some(vlm) = &vlm {
+        println!("model usage: {}", vlm.usage.total());
+    }
     println!("transcript: {}", out.join("transcript.jsonl").display());
     Ok(())
 }

@@ -65,7 +65,7 @@ fn render_table(endpoint: &str, identity: &Identity, status: &Status) -> String 
 
 fn axis_row(index: usize, axis: &AxisStatus) -> String {
     let direction = match axis.direction {
-        Direction::Idle => "-",
+        Direction::Idle => ".",
         Direction::Positive => "+",
         Direction::Negative => "-",
     };

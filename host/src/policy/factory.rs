@@ -4,7 +4,11 @@
 
 use std::io::BufReader;
 
+use super::bo::{BayesOpt, BoSettings};
 use super::manual::ManualPolicy;
+use super::random::RandomSearch;
+use super::vision::VisionPolicy;
+use super::vlm::{VlmOptions, VlmPolicy};
 use super::{Policy, PrivilegedObjective, TaskBrief};
 
 /// Settings some policies take (everything else lives in the policies' own config).
@@ -12,6 +16,8 @@ use super::{Policy, PrivilegedObjective, TaskBrief};
 pub struct PolicyOptions {
     /// Seed for policies that draw random numbers.
     pub seed: u64,
+    /// The vision-language model's settings (`vlm` needs them).
+    pub vlm: Option<VlmOptions>,
 }
 
 /// A policy ready to run, with the objective channel when it is a privileged baseline.
@@ -22,27 +28,50 @@ pub struct BuiltPolicy {
 
 /// Names accepted by [`build_policy`].
 pub fn policy_names() -> &'static [&'static str] {
-    &["manual"]
+    &["manual", "random", "bo", "vlm", "vision"]
 }
 
 /// Builds the named policy for `brief`.
 pub fn build_policy(
     name: &str,
     brief: &TaskBrief,
-    _options: &PolicyOptions,
+    options: &PolicyOptions,
 ) -> anyhow::Result<BuiltPolicy> {
-    let policy: Box<dyn Policy> = match name {
-        "manual" => Box::new(ManualPolicy::new(
-            brief.clone(),
-            BufReader::new(std::io::stdin()),
-        )),
+    let objective = PrivilegedObjective::default();
+    let (policy, objective): (Box<dyn Policy>, _) = match name {
+        "manual" => (
+            Box::new(ManualPolicy::new(
+                brief.clone(),
+                BufReader::new(std::io::stdin()),
+            )),
+            None,
+        ),
+        "random" => (
+            Box::new(RandomSearch::new(brief, objective.clone(), options.seed)),
+            Some(objective),
+        ),
+        "bo" => (
+            Box::new(BayesOpt::new(
+                brief,
+                objective.clone(),
+                options.seed,
+                BoSettings::default(),
+            )),
+            Some(objective),
+        ),
+        "vlm" => {
+            let vlm = options.vlm.as_ref().ok_or_else(|| {
+                anyhow::anyhow!(
+                    "the vlm policy needs a model: give --model (see `optalign run --help`)"
+                )
+            })?;
+            (Box::new(VlmPolicy::connect(brief, vlm)?), None)
+        }
+        "vision" => (Box::new(VisionPolicy::new(brief)), None),
         other => anyhow::bail!(
             "unknown policy {other:?}: available: {}",
             policy_names().join(", ")
         ),
     };
-    Ok(BuiltPolicy {
-        policy,
-        objective: None,
-    })
+    Ok(BuiltPolicy { policy, objective })
 }

@@ -7,8 +7,12 @@
 //! only the baselines the paper gave it to, and only through [`PrivilegedObjective`], which
 //! the run loop fills when (and only when) the policy's constructor asked for it.
 
+pub mod bo;
 mod factory;
 pub mod manual;
+pub mod random;
+pub mod vision;
+pub mod vlm;
 
 use std::path::PathBuf;
 use std::sync::{Arc, Mutex};
