@@ -99,14 +99,14 @@ impl<S: Storage> Controller<S> {
             (Access::SerialOnly, LinkKind::Network) => Err(error_reply!(
                 ErrorCode::SERIAL_ONLY,
                 "{} is accepted on the USB serial link only",
-                name(command)
+                command.name()
             )),
             (Access::Control, LinkKind::Network) if self.key.is_none() => Err(no_key()),
             (Access::Control, LinkKind::Network) if !self.is_authenticated(session) => {
                 Err(error_reply!(
                     ErrorCode::UNAUTHORIZED,
                     "{} needs an authenticated session: AuthChallenge, then AuthResponse",
-                    name(command)
+                    command.name()
                 ))
             }
             (Access::Control, LinkKind::Network) => Ok(()),
@@ -393,25 +393,6 @@ impl<S: Storage> Controller<S> {
                 "{what} applied but not saved: storage {error:?}"
             )
         })
-    }
-}
-
-fn name(command: &Command) -> &'static str {
-    match command {
-        Command::Hello { .. } => "Hello",
-        Command::Status => "Status",
-        Command::MoveTo { .. } => "MoveTo",
-        Command::MoveBy { .. } => "MoveBy",
-        Command::Stop => "Stop",
-        Command::EmergencyStop => "EmergencyStop",
-        Command::SetPosition { .. } => "SetPosition",
-        Command::GetConfig { .. } => "GetConfig",
-        Command::SetConfig { .. } => "SetConfig",
-        Command::SaveConfig => "SaveConfig",
-        Command::ProvisionWifi { .. } => "ProvisionWifi",
-        Command::SetKey { .. } => "SetKey",
-        Command::AuthChallenge => "AuthChallenge",
-        Command::AuthResponse { .. } => "AuthResponse",
     }
 }
 

@@ -120,26 +120,8 @@ async fn michelson_runs_through_the_lab_rig_and_is_scored_by_calibration() {
         .unwrap();
     let rig = rig_file(
         &format!(
-            r#"
-task = "michelson"
-[[controller]]
-name = "mounts"
-url = "{url}"
-key_env = "OPTALIGN_LAB_KEY"
-[axes]
-mirror_1_axis_1 = {{ controller = "mounts", axis = 0 }}
-mirror_1_axis_2 = {{ controller = "mounts", axis = 1 }}
-mirror_2_axis_1 = {{ controller = "mounts", axis = 2 }}
-mirror_2_axis_2 = {{ controller = "mounts", axis = 3 }}
-[camera]
-kind = "sim"
-seed = {seed}
-[settle]
-after_motor_s = 0
-after_camera_s = 0
-[scoring]
-michelson_calibration = "calibration.json"
-"#
+            "{}[scoring]\nmichelson_calibration = \"calibration.json\"\n",
+            michelson_bench(&url, seed)
         ),
         dir.path(),
     );

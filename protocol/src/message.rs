@@ -64,6 +64,26 @@ pub enum Command {
 }
 
 impl Command {
+    /// The command's name, for messages.
+    pub fn name(&self) -> &'static str {
+        match self {
+            Self::Hello { .. } => "Hello",
+            Self::Status => "Status",
+            Self::MoveTo { .. } => "MoveTo",
+            Self::MoveBy { .. } => "MoveBy",
+            Self::Stop => "Stop",
+            Self::EmergencyStop => "EmergencyStop",
+            Self::SetPosition { .. } => "SetPosition",
+            Self::GetConfig { .. } => "GetConfig",
+            Self::SetConfig { .. } => "SetConfig",
+            Self::SaveConfig => "SaveConfig",
+            Self::ProvisionWifi { .. } => "ProvisionWifi",
+            Self::SetKey { .. } => "SetKey",
+            Self::AuthChallenge => "AuthChallenge",
+            Self::AuthResponse { .. } => "AuthResponse",
+        }
+    }
+
     /// What the command needs from the session before it may run.
     pub fn access(&self) -> Access {
         match self {

@@ -4,6 +4,7 @@
 pub mod calibrate;
 pub mod calibration;
 pub mod camera;
+mod command;
 pub mod mover;
 pub mod rig;
 pub mod rigfile;

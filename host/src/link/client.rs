@@ -419,7 +419,7 @@ impl Client {
 
     /// Sends a command whose only good answer is `Ok`.
     pub async fn command_ok(&self, command: Command) -> Result<(), ClientError> {
-        let name = command_name(&command);
+        let name = command.name();
         match self.request(command).await? {
             Reply::Ok => Ok(()),
             other => Err(self.unexpected(name, other)),
@@ -538,25 +538,6 @@ impl Client {
 
 fn to_axis_list(values: &[AxisValue]) -> heapless::Vec<AxisValue, MAX_AXES> {
     values.iter().copied().take(MAX_AXES).collect()
-}
-
-fn command_name(command: &Command) -> &'static str {
-    match command {
-        Command::Hello { .. } => "Hello",
-        Command::Status => "Status",
-        Command::MoveTo { .. } => "MoveTo",
-        Command::MoveBy { .. } => "MoveBy",
-        Command::Stop => "Stop",
-        Command::EmergencyStop => "EmergencyStop",
-        Command::SetPosition { .. } => "SetPosition",
-        Command::GetConfig { .. } => "GetConfig",
-        Command::SetConfig { .. } => "SetConfig",
-        Command::SaveConfig => "SaveConfig",
-        Command::ProvisionWifi { .. } => "ProvisionWifi",
-        Command::SetKey { .. } => "SetKey",
-        Command::AuthChallenge => "AuthChallenge",
-        Command::AuthResponse { .. } => "AuthResponse",
-    }
 }
 
 /// Reads the peer's version out of a version-mismatch reason ("peer speaks protocol N").

@@ -8,6 +8,7 @@ use async_trait::async_trait;
 use optalign_optics::Frame;
 
 use super::{Camera, decode_image, report_saturation};
+use crate::lab::command::run_configured;
 
 /// Runs `argv` (with `{output}` replaced by a fresh path) and reads the image it wrote.
 pub struct CommandCamera {
@@ -36,38 +37,18 @@ impl Camera for CommandCamera {
             .dir
             .path()
             .join(format!("capture-{}.png", self.captures));
-        let output_text = output.to_string_lossy();
-        let args: Vec<String> = self
-            .argv
-            .iter()
-            .map(|a| a.replace("{output}", &output_text))
-            .collect();
-        let mut command = tokio::process::Command::new(&args[0]);
-        command
-            .args(&args[1..])
-            .kill_on_drop(true)
-            .stdin(std::process::Stdio::null());
-        let result = tokio::time::timeout(self.timeout, command.output())
-            .await
-            .with_context(|| {
-                format!(
-                    "camera command {:?} did not finish within {:?}",
-                    args[0], self.timeout
-                )
-            })?
-            .with_context(|| format!("cannot run camera command {:?}", args[0]))?;
-        if !result.status.success() {
-            bail!(
-                "camera command {:?} failed ({}): {}",
-                args[0],
-                result.status,
-                String::from_utf8_lossy(&result.stderr).trim()
-            );
-        }
+        run_configured(
+            &self.argv,
+            "{output}",
+            &output.to_string_lossy(),
+            self.timeout,
+            "camera command",
+        )
+        .await?;
         if !output.exists() {
             bail!(
                 "camera command {:?} succeeded but wrote no image to {}",
-                args[0],
+                self.argv[0],
                 output.display()
             );
         }

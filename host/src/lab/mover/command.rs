@@ -3,11 +3,11 @@
 
 use std::time::Duration;
 
-use anyhow::{Context, bail};
 use async_trait::async_trait;
 use optalign_optics::Station;
 
 use super::CameraMover;
+use crate::lab::command::run_configured;
 
 pub struct CommandMover {
     argv: Vec<String>,
@@ -23,35 +23,15 @@ impl CommandMover {
 #[async_trait]
 impl CameraMover for CommandMover {
     async fn move_to(&mut self, station: Station) -> anyhow::Result<()> {
-        let name = station.to_string();
-        let args: Vec<String> = self
-            .argv
-            .iter()
-            .map(|a| a.replace("{station}", &name))
-            .collect();
-        let mut command = tokio::process::Command::new(&args[0]);
-        command
-            .args(&args[1..])
-            .kill_on_drop(true)
-            .stdin(std::process::Stdio::null());
-        let output = tokio::time::timeout(self.timeout, command.output())
-            .await
-            .with_context(|| {
-                format!(
-                    "camera mover {:?} did not reach {station} within {:?}",
-                    args[0], self.timeout
-                )
-            })?
-            .with_context(|| format!("cannot run camera mover {:?}", args[0]))?;
-        if !output.status.success() {
-            bail!(
-                "camera mover {:?} failed to reach {station} ({}): {}",
-                args[0],
-                output.status,
-                String::from_utf8_lossy(&output.stderr).trim()
-            );
-        }
-        Ok(())
+        let what = format!("camera mover (to {station})");
+        run_configured(
+            &self.argv,
+            "{station}",
+            &station.to_string(),
+            self.timeout,
+            &what,
+        )
+        .await
     }
 
     fn describe(&self) -> String {
@@ -95,7 +75,7 @@ mod tests {
         );
         let error = failing.move_to(Station::C1).await.unwrap_err().to_string();
         assert!(
-            error.contains("failed to reach C1") && error.contains("jammed"),
+            error.contains("(to C1)") && error.contains("failed") && error.contains("jammed"),
             "{error}"
         );
     }
