@@ -188,7 +188,7 @@ cavity_aligned = [{}, {}]
 async fn relay_runs_through_the_lab_rig_over_two_controllers_and_the_camera_mover() {
     let dir = tempfile::tempdir().unwrap();
     let scenario = ScenarioFile::default();
-    let seed = 1;
+    let seed = 9;
     let offsets = relay_offsets(&scenario.relay, seed).unwrap();
     let (peer_a, url_a) = peer(4, 30).await;
     let (peer_b, url_b) = peer(4, 30).await;
