@@ -234,7 +234,7 @@ impl RelayAgent {
         let gain = if clean {
             broyden(gain, self.near_last, s.centre)
         } else {
-            gain
+            flip_wrong_signs(gain, self.near_last, s.centre)
         };
         self.near_gain = Some(gain);
         if clean && distance(s.centre, centre) < CENTRED_PX {
@@ -351,6 +351,26 @@ fn broyden(gain: [[f64; 2]; 2], last: Option<(Vec2, Vec2)>, now: Vec2) -> [[f64;
         let miss = dp[r] - (gain[r][0] * du[0] + gain[r][1] * du[1]);
         row[0] += miss * du[0] / norm;
         row[1] += miss * du[1] / norm;
+    }
+    out
+}
+
+/// For a clipped or speckled spot, flips a tilt axis's response when the image axis it
+/// mainly drives (vertical tilt y, horizontal x) moved clearly against the prediction: a
+/// clipped probe can give the wrong sign.
+fn flip_wrong_signs(gain: [[f64; 2]; 2], last: Option<(Vec2, Vec2)>, now: Vec2) -> [[f64; 2]; 2] {
+    let Some((before, du)) = last else {
+        return gain;
+    };
+    let mut out = gain;
+    for axis in [0, 1] {
+        let row = 1 - axis;
+        let predicted = gain[row][0] * du[0] + gain[row][1] * du[1];
+        let observed = now[row] - before[row];
+        if observed.abs() > 5.0 && predicted * observed < 0.0 {
+            out[0][axis] = -gain[0][axis];
+            out[1][axis] = -gain[1][axis];
+        }
     }
     out
 }
