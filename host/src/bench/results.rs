@@ -25,7 +25,6 @@ pub struct PolicyStats {
     pub best_mean: Option<f64>,
     pub median_evaluations: f64,
     pub median_wall_clock_s: f64,
-    pub mean_wall_clock_s: f64,
     /// Relay: per mirror, the mean and std of the evaluation from which it stayed aligned
     /// over the runs that reached it, and how many did.
     pub milestones: Option<[MilestoneStats; 4]>,
@@ -67,7 +66,6 @@ impl PolicyStats {
             best_mean: mean(&best),
             median_evaluations: median(&evaluations).unwrap_or(0.0),
             median_wall_clock_s: median(&wall).unwrap_or(0.0),
-            mean_wall_clock_s: mean(&wall).unwrap_or(0.0),
             milestones,
         }
     }

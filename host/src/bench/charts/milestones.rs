@@ -65,6 +65,7 @@ impl Chart for Milestones {
             .configure_mesh()
             .bold_line_style(BOLD_GRID)
             .light_line_style(LIGHT_GRID)
+            .max_light_lines(2)
             .y_label_formatter(&tick)
             .disable_x_mesh()
             .x_labels(5)

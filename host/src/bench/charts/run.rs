@@ -43,6 +43,7 @@ impl Chart for RunChart<'_> {
             .y_labels(6)
             .bold_line_style(BOLD_GRID)
             .light_line_style(LIGHT_GRID)
+            .max_light_lines(2)
             .x_label_formatter(&tick)
             .y_label_formatter(&tick)
             .x_desc("evaluation")

@@ -77,6 +77,7 @@ impl SpeedAccuracy {
             .y_labels(6)
             .bold_line_style(BOLD_GRID)
             .light_line_style(LIGHT_GRID)
+            .max_light_lines(2)
             .x_label_formatter(&tick)
             .y_label_formatter(&tick)
             .x_desc(if wall_clock {

@@ -189,15 +189,6 @@ impl GaussianProcess {
         self.log_marginal_likelihood
     }
 
-    /// Number of observations.
-    pub fn len(&self) -> usize {
-        self.inputs.len()
-    }
-
-    pub fn is_empty(&self) -> bool {
-        self.inputs.is_empty()
-    }
-
     /// Maps an output to the standardised scale the GP works on.
     pub fn standardise(&self, output: f64) -> f64 {
         (output - self.output_mean) / self.output_scale

@@ -42,10 +42,6 @@ impl Cholesky {
         Some(Self { n, l: a })
     }
 
-    pub fn dim(&self) -> usize {
-        self.n
-    }
-
     /// L[i][j].
     pub fn factor(&self, i: usize, j: usize) -> f64 {
         self.l[i * self.n + j]

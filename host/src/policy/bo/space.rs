@@ -65,14 +65,6 @@ impl SearchSpace {
         vec![0; self.dims()]
     }
 
-    pub fn contains(&self, config: &[i32]) -> bool {
-        config.len() == self.dims()
-            && config
-                .iter()
-                .zip(self.lows.iter().zip(&self.highs))
-                .all(|(c, (lo, hi))| (lo..=hi).contains(&c))
-    }
-
     /// A configuration drawn uniformly from the box (each axis independently).
     pub fn sample(&self, rng: &mut impl Rng) -> Vec<i32> {
         self.lows
