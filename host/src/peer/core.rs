@@ -103,8 +103,8 @@ impl PeerCore {
         Ok(core)
     }
 
-    /// Stores the access key through the serial-only command, as `optalign provision` does.
-    fn provision_key(&mut self, passphrase: &str) -> anyhow::Result<()> {
+    /// A trusted serial session that has completed the handshake, for in-process use.
+    pub fn serial_session(&mut self) -> Session {
         let mut session = Session::new(LinkKind::Serial);
         let hello = Request {
             id: RequestId(0),
@@ -113,6 +113,12 @@ impl PeerCore {
             },
         };
         self.handle(&mut session, &hello);
+        session
+    }
+
+    /// Stores the access key through the serial-only command, as `optalign provision` does.
+    fn provision_key(&mut self, passphrase: &str) -> anyhow::Result<()> {
+        let mut session = self.serial_session();
         let set_key = Request {
             id: RequestId(rand::random()),
             command: Command::SetKey {

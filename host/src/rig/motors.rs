@@ -6,7 +6,7 @@
 use std::sync::Arc;
 
 use anyhow::{Context, bail};
-use optalign_firmware::{LinkKind, Session};
+use optalign_firmware::Session;
 use optalign_protocol::{
     AxisConfig, AxisValue, Command, MoveOutcome, PeerMessage, Reply, Request, RequestId, SoftLimits,
 };
@@ -64,14 +64,7 @@ impl SimMotors {
         let mut motors = match path {
             MotorPath::InProcess => {
                 let mut core = Box::new(PeerCore::new(&options)?);
-                let mut session = Box::new(Session::new(LinkKind::Serial));
-                let hello = Request {
-                    id: RequestId(0),
-                    command: Command::Hello {
-                        protocol_version: optalign_protocol::PROTOCOL_VERSION,
-                    },
-                };
-                core.handle(&mut session, &hello);
+                let session = Box::new(core.serial_session());
                 Self::InProcess {
                     core,
                     session,
