@@ -29,6 +29,25 @@ fn a_clean_michelson_beam_is_found_within_a_pixel() {
 }
 
 #[test]
+fn a_michelson_beam_cut_by_the_border_is_flagged_and_its_centre_fitted() {
+    let scene = Michelson::new(ScenarioFile::default().michelson, [0; 4]).unwrap();
+    // Mirror 1's beam from inside the top edge to 100 px beyond it; mirror 2's far away.
+    for vertical in [3000, 3500, 4000] {
+        let shaft = [-2000, vertical, 20_000, 0];
+        let truth = scene.truth(&shaft).beam_centres_px[0];
+        let beams = find_beams(&scene.render(&shaft, 5));
+        assert_eq!(beams.len(), 1, "{beams:?}");
+        let fit = beams[0].fit.expect("a spot fit");
+        assert!(beams[0].clipped, "{beams:?}");
+        assert!(distance(fit.centre, truth) < 3.0, "{fit:?} vs {truth:?}");
+        assert!(
+            distance(beams[0].centre, truth) > 10.0,
+            "the centroid is pulled inwards"
+        );
+    }
+}
+
+#[test]
 fn a_relay_spot_is_localised_and_a_clipped_beam_is_speckle() {
     let scene = Relay::new(ScenarioFile::default().relay, [0; 8]).unwrap();
     let spot = find_beams(&scene.render(&[0; 8], &CameraPose::nominal(Station::C8), 1));

@@ -6,6 +6,8 @@
 
 use optalign_optics::Frame;
 
+use super::gaussian::{GaussianFit, GaussianFitter};
+
 /// A bright region of an image.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct BeamSpot {
@@ -19,6 +21,9 @@ pub struct BeamSpot {
     pub clipped: bool,
     /// Intensity-weighted RMS radius, px.
     pub radius: f64,
+    /// A round Gaussian fitted to the unsaturated pixels, when they fall off like a spot.
+    /// For a clipped spot its centre is the true one (the centroid is pulled inwards).
+    pub fit: Option<GaussianFit>,
 }
 
 /// Pixels per side of the blocks the image is reduced to before segmentation.
@@ -32,6 +37,17 @@ const MIN_SIGNAL: f64 = 2000.0;
 
 /// Mean neighbour difference over mean signal, above which a region is speckle.
 const MAX_SPOT_ROUGHNESS: f64 = 0.15;
+
+/// This many pixels at a region's brightest level make a saturated plateau.
+const SATURATION_PLATEAU: usize = 4;
+
+/// A pixel is bright when it exceeds the background by this many read-noise deviations.
+const THRESHOLD_NOISES: f64 = 6.0;
+
+/// The spot fit uses pixels brighter than this share of the region's peak and this many
+/// read-noise deviations: the faint rim carries mostly noise.
+const FIT_FLOOR_SHARE: f64 = 0.08;
+const FIT_FLOOR_NOISES: f64 = 3.0;
 
 /// Beams in `frame`, brightest first. Regions smaller than a few blocks are noise.
 pub fn find_beams(frame: &Frame) -> Vec<BeamSpot> {
@@ -105,7 +121,7 @@ fn segment(
     background: f64,
     noise: f64,
 ) -> Vec<BeamSpot> {
-    let threshold = background + 6.0 * noise.max(1.0);
+    let threshold = background + THRESHOLD_NOISES * noise.max(1.0);
     // Block means: speckle grains merge into one cloud, and segmentation is cheap.
     let (bw, bh) = (width.div_ceil(BLOCK), height.div_ceil(BLOCK));
     let mut blocks = vec![0f64; bw * bh];
@@ -220,27 +236,30 @@ struct Grid<'a> {
 fn measure(grid: &Grid, region: &[usize], background: f64, threshold: f64) -> Option<BeamSpot> {
     let (mut sum, mut sx, mut sy, mut sxx) = (0.0, 0.0, 0.0, 0.0);
     let (mut core, mut roughness) = (0.0, 0.0);
+    let (mut brightest, mut at_brightest) = (f64::MIN, 0usize);
     let mut clipped = false;
     for &block in region {
         let (bx, by) = (block % grid.bw, block / grid.bw);
         clipped |= bx == 0 || by == 0 || bx + 1 == grid.bw || by + 1 == grid.bh;
-        let (x0, y0) = (bx * BLOCK, by * BLOCK);
-        for y in y0..(y0 + BLOCK).min(grid.height) {
-            for x in x0..(x0 + BLOCK).min(grid.width) {
-                let raw = f64::from(grid.values[y * grid.width + x]);
-                let value = raw - background;
-                if value <= 0.0 {
-                    continue;
-                }
-                let (px, py) = (x as f64 + 0.5, y as f64 + 0.5);
-                sum += value;
-                sx += value * px;
-                sy += value * py;
-                sxx += value * (px * px + py * py);
-                if raw > threshold && x + 1 < grid.width {
-                    core += value;
-                    roughness += (f64::from(grid.values[y * grid.width + x + 1]) - raw).abs();
-                }
+        for (x, y, raw) in grid.block_pixels(block) {
+            let value = raw - background;
+            if value <= 0.0 {
+                continue;
+            }
+            let (px, py) = (x as f64 + 0.5, y as f64 + 0.5);
+            sum += value;
+            sx += value * px;
+            sy += value * py;
+            sxx += value * (px * px + py * py);
+            if raw > threshold && x + 1 < grid.width {
+                core += value;
+                roughness += (f64::from(grid.values[y * grid.width + x + 1]) - raw).abs();
+            }
+            if raw > brightest {
+                (brightest, at_brightest) = (raw, 0);
+            }
+            if raw == brightest {
+                at_brightest += 1;
             }
         }
     }
@@ -254,13 +273,38 @@ fn measure(grid: &Grid, region: &[usize], background: f64, threshold: f64) -> Op
     // A spot is smooth: neighbouring pixels differ little compared with the light they
     // carry. Speckle grains make neighbours differ by about as much as the light itself.
     let localised = core > 0.0 && roughness / core < MAX_SPOT_ROUGHNESS;
+    // A plateau at the brightest level is saturation: those pixels carry no shape.
+    let saturated = at_brightest >= SATURATION_PLATEAU;
+    let noise = (threshold - background) / THRESHOLD_NOISES;
+    let floor = (FIT_FLOOR_NOISES * noise).max(FIT_FLOOR_SHARE * (brightest - background));
+    let mut fitter = GaussianFitter::new(centre, radius);
+    for &block in region {
+        for (x, y, raw) in grid.block_pixels(block) {
+            let value = raw - background;
+            if value > floor && !(saturated && raw >= brightest) {
+                fitter.add(x as f64 + 0.5, y as f64 + 0.5, value);
+            }
+        }
+    }
     Some(BeamSpot {
         centre,
         signal: sum,
         localised,
         clipped,
         radius,
+        fit: fitter.finish(noise),
     })
+}
+
+impl Grid<'_> {
+    /// The full-resolution pixels of one block: (x, y, value).
+    fn block_pixels(&self, block: usize) -> impl Iterator<Item = (usize, usize, f64)> + '_ {
+        let (x0, y0) = ((block % self.bw) * BLOCK, (block / self.bw) * BLOCK);
+        (y0..(y0 + BLOCK).min(self.height)).flat_map(move |y| {
+            (x0..(x0 + BLOCK).min(self.width))
+                .map(move |x| (x, y, f64::from(self.values[y * self.width + x])))
+        })
+    }
 }
 
 #[cfg(test)]

@@ -10,7 +10,7 @@ use std::sync::Arc;
 use optalign_optics::Frame;
 
 use super::model::{Tracker, Vec2, distance};
-use super::track::{Sighting, sighting};
+use super::track::{BlobFilter, Sighting, sighting};
 use crate::imaging::{find_beams, saturated_centre};
 use crate::task::{Action, CavityLimits};
 
@@ -107,36 +107,13 @@ impl CavityAgent {
         if self.last == Step::Start {
             return false;
         }
-        let seen = sighting(&before, frame, &[], &[], false, |c| {
-            distance(c, target) > HIDDEN_PX
-        });
-        let (old, new) = (self.before, self.command);
-        match seen.appeared {
-            Some(Sighting {
-                centre,
-                clean: true,
-            }) => self.tracker.add_clean(new, centre),
-            Some(Sighting {
-                centre,
-                clean: false,
-            }) => self.tracker.add_partial(new, centre),
-            None => self.tracker.add_missing(new),
-        }
-        let unmeasured = self
-            .tracker
-            .clean
-            .iter()
-            .all(|(u, _)| distance(*u, old) >= 1.0);
-        if let (
-            true,
-            Some(Sighting {
-                centre,
-                clean: true,
-            }),
-        ) = (unmeasured, seen.vanished)
-        {
-            self.tracker.add_clean(old, centre);
-        }
+        let visible = |c: Vec2| distance(c, target) > HIDDEN_PX;
+        let filter = BlobFilter {
+            accept: Some(&visible),
+            companion: None,
+        };
+        let seen = sighting(&before, frame, &[], &[], false, &filter);
+        self.tracker.record_move(self.before, self.command, seen);
         match (self.last, seen.appeared) {
             (
                 Step::Check(Some(p)),

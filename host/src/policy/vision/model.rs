@@ -3,6 +3,8 @@
 //! the choice of the next probe (an axis not yet moved, or an expanding search when the
 //! feature has not been seen).
 
+use std::ops::RangeInclusive;
+
 /// A 2-vector (motor steps or pixels).
 pub type Vec2 = [f64; 2];
 
@@ -33,6 +35,19 @@ impl Affine {
         }
         let [rx, ry] = [point[0] - self.offset[0], point[1] - self.offset[1]];
         Some([(d * rx - b * ry) / det, (a * ry - c * rx) / det])
+    }
+
+    /// The same response passing exactly through one observation: local corrections from
+    /// the latest sighting do not inherit the fit's offset error.
+    pub fn anchored(&self, command: Vec2, image: Vec2) -> Affine {
+        let moved = self.predict(command);
+        Affine {
+            offset: [
+                self.offset[0] + image[0] - moved[0],
+                self.offset[1] + image[1] - moved[1],
+            ],
+            gain: self.gain,
+        }
     }
 
     /// Least-squares fit to `(command, image)` pairs; `None` unless the commands span both
@@ -73,6 +88,27 @@ pub fn distance(a: Vec2, b: Vec2) -> f64 {
     (a[0] - b[0]).hypot(a[1] - b[1])
 }
 
+/// Eight commands around `centre` (the axes first, then the diagonals) at each multiple
+/// `k` of `spacing`.
+fn rings(centre: Vec2, spacing: Vec2, multiples: RangeInclusive<i32>) -> Vec<Vec2> {
+    multiples
+        .flat_map(|k| {
+            let (sx, sy) = (spacing[0] * f64::from(k), spacing[1] * f64::from(k));
+            [
+                [sx, 0.0],
+                [-sx, 0.0],
+                [0.0, sy],
+                [0.0, -sy],
+                [sx, sy],
+                [-sx, sy],
+                [sx, -sy],
+                [-sx, -sy],
+            ]
+        })
+        .map(|d| [centre[0] + d[0], centre[1] + d[1]])
+        .collect()
+}
+
 /// Commands closer than this count as the same probe, steps.
 const SAME_COMMAND: f64 = 100.0;
 
@@ -110,6 +146,15 @@ impl Tracker {
         Affine::fit(&self.clean, self.min_spread)
     }
 
+    /// The fitted model anchored at the latest clean sighting.
+    pub fn local_model(&self) -> Option<Affine> {
+        let model = self.model()?;
+        Some(match self.clean.last() {
+            Some(&(command, image)) => model.anchored(command, image),
+            None => model,
+        })
+    }
+
     /// Records a clean observation, replacing an earlier one at the same command.
     pub fn add_clean(&mut self, command: Vec2, image: Vec2) {
         self.clean.retain(|(u, _)| distance(*u, command) >= 1.0);
@@ -122,6 +167,14 @@ impl Tracker {
 
     pub fn add_missing(&mut self, command: Vec2) {
         self.missing.push(command);
+    }
+
+    /// Whether any observation was made at exactly `command` (within a step).
+    pub fn tried_exactly(&self, command: Vec2) -> bool {
+        let at = |u: &Vec2| distance(*u, command) < 1.0;
+        self.clean.iter().any(|(u, _)| at(u))
+            || self.partial.iter().any(|(u, _)| at(u))
+            || self.missing.iter().any(at)
     }
 
     /// Whether any observation was made at (about) `command`.
@@ -138,10 +191,6 @@ impl Tracker {
             command[0].clamp(self.range[0][0], self.range[0][1]),
             command[1].clamp(self.range[1][0], self.range[1][1]),
         ]
-    }
-
-    fn in_range(&self, command: Vec2) -> bool {
-        self.clamp(command) == command
     }
 
     /// The next command to learn the response: a move along an axis the clean observations
@@ -176,42 +225,89 @@ impl Tracker {
             );
             out
         } else if let Some(&(base, _)) = self.partial.last() {
-            [
-                [px, 0.0],
-                [-px, 0.0],
-                [0.0, py],
-                [0.0, -py],
-                [px, py],
-                [-px, -py],
-                [px, -py],
-                [-px, py],
-            ]
-            .iter()
-            .map(|d| [base[0] + d[0], base[1] + d[1]])
-            .collect()
+            rings(base, self.probe, 1..=1)
         } else {
-            (1..=6)
-                .flat_map(|k| {
-                    let (sx, sy) = (2.0 * px * f64::from(k), 2.0 * py * f64::from(k));
-                    [
-                        [sx, 0.0],
-                        [-sx, 0.0],
-                        [0.0, sy],
-                        [0.0, -sy],
-                        [sx, sy],
-                        [-sx, sy],
-                        [sx, -sy],
-                        [-sx, -sy],
-                    ]
-                })
-                .map(|d| [start[0] + d[0], start[1] + d[1]])
-                .collect()
+            rings(start, [2.0 * px, 2.0 * py], 1..=6)
         };
+        // When all of those were tried, a finer search around the start.
         candidates
             .into_iter()
+            .chain(rings(start, self.probe, 1..=12))
             .map(|c| self.clamp(c))
-            .find(|c| !self.tried(*c) && self.in_range(*c))
+            .find(|c| !self.tried(*c))
             .unwrap_or_else(|| self.clamp([start[0] + px, start[1] + py]))
+    }
+}
+
+impl Tracker {
+    /// Sets the probe length per axis (and with it the spread a fit needs).
+    pub fn set_probe(&mut self, probe: Vec2) {
+        self.probe = probe;
+        self.min_spread = probe[0].min(probe[1]) / 4.0;
+    }
+
+    /// Whether anything was seen or looked for yet.
+    pub fn is_fresh(&self) -> bool {
+        self.clean.is_empty() && self.partial.is_empty() && self.missing.is_empty()
+    }
+
+    /// The next command to learn the response while bringing the feature towards `target`.
+    /// From a fresh start, one probe length along the first axis (the feature is usually in
+    /// view at the start). Once two clean sightings span one direction, the move along it
+    /// that they predict puts the feature nearest `target`, combined with a probe across it
+    /// (full length either way, then a third for a feature that left the image); the
+    /// feature stays in view and the probe makes progress. Otherwise [`Self::next_probe`].
+    pub fn next_probe_towards(&self, start: Vec2, target: Vec2) -> Vec2 {
+        if self.is_fresh() {
+            return self.clamp([start[0] + self.probe[0], start[1]]);
+        }
+        self.probe_across(target)
+            .unwrap_or_else(|| self.next_probe(start))
+    }
+
+    fn probe_across(&self, target: Vec2) -> Option<Vec2> {
+        let &(base, seen) = self.clean.last()?;
+        let &(other, other_seen) = self
+            .clean
+            .iter()
+            .max_by(|a, b| distance(a.0, base).total_cmp(&distance(b.0, base)))?;
+        let span = distance(other, base);
+        if span < self.min_spread {
+            return None;
+        }
+        let along = [(other[0] - base[0]) / span, (other[1] - base[1]) / span];
+        let response = [
+            (other_seen[0] - seen[0]) / span,
+            (other_seen[1] - seen[1]) / span,
+        ];
+        let strength = response[0].powi(2) + response[1].powi(2);
+        if strength < 1e-12 {
+            return None;
+        }
+        let probe = self.probe[0] * along[1].abs() + self.probe[1] * along[0].abs();
+        let reach = 3.0 * probe.max(span);
+        let travel = (((target[0] - seen[0]) * response[0] + (target[1] - seen[1]) * response[1])
+            / strength)
+            .clamp(-reach, reach);
+        // Across, pointing the positive way of the axis it mostly moves.
+        let across = if along[0].abs() > along[1].abs() {
+            [-along[1] * along[0].signum(), along[0].abs()]
+        } else {
+            [along[1].abs(), -along[0] * along[1].signum()]
+        };
+        [1.0, -1.0, 1.0 / 3.0, -1.0 / 3.0]
+            .into_iter()
+            .map(|share| {
+                let step = share * probe;
+                self.clamp([
+                    base[0] + travel * along[0] + step * across[0],
+                    base[1] + travel * along[1] + step * across[1],
+                ])
+            })
+            .find(|c| {
+                let spread = (c[0] - base[0]) * across[0] + (c[1] - base[1]) * across[1];
+                spread.abs() >= self.min_spread && !self.tried(*c)
+            })
     }
 }
 
@@ -247,5 +343,22 @@ mod tests {
         tracker.add_clean([0.0, 0.0], [100.0, 100.0]);
         tracker.add_clean([1500.0, 0.0], [350.0, 100.0]);
         assert_eq!(tracker.next_probe([0.0, 0.0]), [1500.0, 1500.0]);
+    }
+
+    #[test]
+    fn probes_across_while_centring_along_a_known_direction() {
+        let mut tracker = Tracker::new([1500.0, 1500.0], [[-8000.0, 8000.0], [-6000.0, 6000.0]]);
+        assert_eq!(
+            tracker.next_probe_towards([0.0, 0.0], [960.0, 540.0]),
+            [1500.0, 0.0]
+        );
+        // 0.2 px per step along the first axis: 500 px short of the target is 2500 steps.
+        tracker.add_clean([0.0, 0.0], [160.0, 540.0]);
+        tracker.add_clean([1500.0, 0.0], [460.0, 540.0]);
+        let next = tracker.next_probe_towards([0.0, 0.0], [960.0, 540.0]);
+        assert!(distance(next, [4000.0, 1500.0]) < 1e-6, "{next:?}");
+        tracker.add_missing(next);
+        let next = tracker.next_probe_towards([0.0, 0.0], [960.0, 540.0]);
+        assert!(distance(next, [4000.0, -1500.0]) < 1e-6, "{next:?}");
     }
 }
