@@ -50,6 +50,9 @@ const CONFIRM_PX: f64 = 3.0;
 /// A spot farther than this from a beam's prediction is not that beam, px.
 const MATCH_PX: f64 = 120.0;
 
+/// A partial sighting this close to a border was cut by it, px.
+const BORDER_PX: f64 = 80.0;
+
 /// What the last action was for.
 #[derive(Clone, Copy, Debug, PartialEq)]
 enum Step {
@@ -122,7 +125,12 @@ impl MichelsonAgent {
                 return self.finish(centre);
             }
             self.scale_probe(k);
-            let u = self.trackers[k].next_probe_towards([0.0, 0.0], centre);
+            let prefer = self.trackers[k]
+                .partial
+                .last()
+                .and_then(|(_, seen)| border_axis(*seen, centre));
+            let view = [2.0 * centre[0], 2.0 * centre[1]];
+            let u = self.trackers[k].next_probe_towards([0.0, 0.0], view, prefer);
             return self.probe(k, u, centre);
         }
         if confirmed || remaining <= 2 {
@@ -323,4 +331,19 @@ fn nearest_trusted(spots: &[BeamSpot], frame: &Frame, point: Vec2) -> Option<Vec
         .filter_map(|s| trusted_centre(s, frame))
         .filter(|c| distance(*c, point) < MATCH_PX)
         .min_by(|a, b| distance(*a, point).total_cmp(&distance(*b, point)))
+}
+
+/// The axis that moves a beam seen at `point` away from the border it is cut by: 1
+/// (vertical) at the top or bottom, 0 at the left or right (nominally, axis 1 of a mount
+/// tilts horizontally and axis 2 vertically; the agent still measures signs and scales).
+fn border_axis(point: Vec2, centre: Vec2) -> Option<usize> {
+    let gap = |axis: usize| centre[axis] - (point[axis] - centre[axis]).abs();
+    let (horizontal, vertical) = (gap(0), gap(1));
+    if vertical < BORDER_PX && vertical < horizontal {
+        Some(1)
+    } else if horizontal < BORDER_PX {
+        Some(0)
+    } else {
+        None
+    }
 }

@@ -109,6 +109,30 @@ fn rings(centre: Vec2, spacing: Vec2, multiples: RangeInclusive<i32>) -> Vec<Vec
         .collect()
 }
 
+/// A probe across a known direction keeps the feature's centre this far inside the
+/// image, px.
+const IN_VIEW_MARGIN_PX: f64 = 40.0;
+
+/// How far a feature at `from` can move either way along the unit `direction` and stay
+/// inside an image of size `view`.
+fn room(from: Vec2, direction: Vec2, view: Vec2) -> f64 {
+    let exit = |sign: f64| {
+        (0..2)
+            .map(|axis| {
+                let step = sign * direction[axis];
+                if step > 1e-9 {
+                    (view[axis] - from[axis]) / step
+                } else if step < -1e-9 {
+                    from[axis] / -step
+                } else {
+                    f64::INFINITY
+                }
+            })
+            .fold(f64::INFINITY, f64::min)
+    };
+    exit(1.0).min(exit(-1.0)).max(0.0)
+}
+
 /// Commands closer than this count as the same probe, steps.
 const SAME_COMMAND: f64 = 100.0;
 
@@ -197,6 +221,12 @@ impl Tracker {
     /// do not yet span, or, while the feature has not been measured cleanly, a step away
     /// from where it showed partly, or an expanding search around the start.
     pub fn next_probe(&self, start: Vec2) -> Vec2 {
+        self.next_probe_preferring(start, None)
+    }
+
+    /// [`Self::next_probe`], trying moves of axis `prefer` first around a partial sighting
+    /// (a feature cut by the top or bottom border needs the axis that moves it vertically).
+    fn next_probe_preferring(&self, start: Vec2, prefer: Option<usize>) -> Vec2 {
         let [px, py] = self.probe;
         let candidates: Vec<Vec2> = if let Some(&(base, _)) = self.clean.last() {
             let spans = |axis: usize| {
@@ -225,7 +255,11 @@ impl Tracker {
             );
             out
         } else if let Some(&(base, _)) = self.partial.last() {
-            rings(base, self.probe, 1..=1)
+            let mut around = rings(base, self.probe, 1..=1);
+            if let Some(axis) = prefer {
+                around.sort_by_key(|c| usize::from(c[1 - axis] != base[1 - axis]));
+            }
+            around
         } else {
             rings(start, [2.0 * px, 2.0 * py], 1..=6)
         };
@@ -251,21 +285,24 @@ impl Tracker {
         self.clean.is_empty() && self.partial.is_empty() && self.missing.is_empty()
     }
 
-    /// The next command to learn the response while bringing the feature towards `target`.
-    /// From a fresh start, one probe length along the first axis (the feature is usually in
-    /// view at the start). Once two clean sightings span one direction, the move along it
-    /// that they predict puts the feature nearest `target`, combined with a probe across it
-    /// (full length either way, then a third for a feature that left the image); the
-    /// feature stays in view and the probe makes progress. Otherwise [`Self::next_probe`].
-    pub fn next_probe_towards(&self, start: Vec2, target: Vec2) -> Vec2 {
+    /// The next command to learn the response while bringing the feature towards the
+    /// centre of an image of size `view`. From a fresh start, one probe length along the
+    /// first axis (the feature is usually in view at the start). Once two clean sightings
+    /// span one direction, the move along it that they predict puts the feature nearest the
+    /// centre, combined with a probe across it, short enough that the feature stays in view
+    /// whichever way it goes (at the response measured along; either sign, then a third for
+    /// a feature that left the image anyway): the probe makes progress and is seen.
+    /// Otherwise [`Self::next_probe`], trying axis `prefer` first around a partial sighting.
+    pub fn next_probe_towards(&self, start: Vec2, view: Vec2, prefer: Option<usize>) -> Vec2 {
         if self.is_fresh() {
             return self.clamp([start[0] + self.probe[0], start[1]]);
         }
-        self.probe_across(target)
-            .unwrap_or_else(|| self.next_probe(start))
+        self.probe_across(view)
+            .unwrap_or_else(|| self.next_probe_preferring(start, prefer))
     }
 
-    fn probe_across(&self, target: Vec2) -> Option<Vec2> {
+    fn probe_across(&self, view: Vec2) -> Option<Vec2> {
+        let target = [view[0] / 2.0, view[1] / 2.0];
         let &(base, seen) = self.clean.last()?;
         let &(other, other_seen) = self
             .clean
@@ -295,7 +332,16 @@ impl Tracker {
         } else {
             [along[1].abs(), -along[0] * along[1].signum()]
         };
-        [1.0, -1.0, 1.0 / 3.0, -1.0 / 3.0]
+        // The across response is not known yet: take the same size, at right angles.
+        let landing = [
+            seen[0] + travel * response[0],
+            seen[1] + travel * response[1],
+        ];
+        let size = strength.sqrt();
+        let sideways = [-response[1] / size, response[0] / size];
+        let room = room(landing, sideways, view) - IN_VIEW_MARGIN_PX;
+        let full = (room / (size * probe)).clamp(1.0 / 3.0, 1.0);
+        [full, -full, full / 3.0, -full / 3.0]
             .into_iter()
             .map(|share| {
                 let step = share * probe;
@@ -349,16 +395,16 @@ mod tests {
     fn probes_across_while_centring_along_a_known_direction() {
         let mut tracker = Tracker::new([1500.0, 1500.0], [[-8000.0, 8000.0], [-6000.0, 6000.0]]);
         assert_eq!(
-            tracker.next_probe_towards([0.0, 0.0], [960.0, 540.0]),
+            tracker.next_probe_towards([0.0, 0.0], [1920.0, 1080.0], None),
             [1500.0, 0.0]
         );
         // 0.2 px per step along the first axis: 500 px short of the target is 2500 steps.
         tracker.add_clean([0.0, 0.0], [160.0, 540.0]);
         tracker.add_clean([1500.0, 0.0], [460.0, 540.0]);
-        let next = tracker.next_probe_towards([0.0, 0.0], [960.0, 540.0]);
+        let next = tracker.next_probe_towards([0.0, 0.0], [1920.0, 1080.0], None);
         assert!(distance(next, [4000.0, 1500.0]) < 1e-6, "{next:?}");
         tracker.add_missing(next);
-        let next = tracker.next_probe_towards([0.0, 0.0], [960.0, 540.0]);
+        let next = tracker.next_probe_towards([0.0, 0.0], [1920.0, 1080.0], None);
         assert!(distance(next, [4000.0, -1500.0]) < 1e-6, "{next:?}");
     }
 }
