@@ -49,6 +49,10 @@ const THRESHOLD_NOISES: f64 = 6.0;
 const FIT_FLOOR_SHARE: f64 = 0.08;
 const FIT_FLOOR_NOISES: f64 = 3.0;
 
+/// A fitted radius beyond this multiple of the region's RMS radius is a flat clump of
+/// noise, not a spot (a Gaussian's 1/e² radius is about 1.4 times its RMS radius).
+const MAX_FIT_RADIUS_SHARE: f64 = 3.0;
+
 /// Beams in `frame`, brightest first. Regions smaller than a few blocks are noise.
 pub fn find_beams(frame: &Frame) -> Vec<BeamSpot> {
     let values: Vec<f32> = frame.pixels().iter().map(|&p| f32::from(p)).collect();
@@ -275,24 +279,34 @@ fn measure(grid: &Grid, region: &[usize], background: f64, threshold: f64) -> Op
     let localised = core > 0.0 && roughness / core < MAX_SPOT_ROUGHNESS;
     // A plateau at the brightest level is saturation: those pixels carry no shape.
     let saturated = at_brightest >= SATURATION_PLATEAU;
-    let noise = (threshold - background) / THRESHOLD_NOISES;
-    let floor = (FIT_FLOOR_NOISES * noise).max(FIT_FLOOR_SHARE * (brightest - background));
+    // The fit runs on block means: sixteen pixels average the read noise down fourfold,
+    // and a spot varies little across a block.
+    let block_noise = (threshold - background) / THRESHOLD_NOISES / BLOCK as f64;
+    let floor = (FIT_FLOOR_NOISES * block_noise).max(FIT_FLOOR_SHARE * (brightest - background));
     let mut fitter = GaussianFitter::new(centre, radius);
     for &block in region {
+        let (mut n, mut total, mut bx, mut by, mut clamped) = (0.0, 0.0, 0.0, 0.0, false);
         for (x, y, raw) in grid.block_pixels(block) {
-            let value = raw - background;
-            if value > floor && !(saturated && raw >= brightest) {
-                fitter.add(x as f64 + 0.5, y as f64 + 0.5, value);
-            }
+            n += 1.0;
+            total += raw - background;
+            bx += x as f64 + 0.5;
+            by += y as f64 + 0.5;
+            clamped |= saturated && raw >= brightest;
+        }
+        if n > 0.0 && !clamped && total / n > floor {
+            fitter.add(bx / n, by / n, total / n);
         }
     }
+    let fit = fitter
+        .finish(block_noise)
+        .filter(|f| f.radius < MAX_FIT_RADIUS_SHARE * radius.max(1.0));
     Some(BeamSpot {
         centre,
         signal: sum,
         localised,
         clipped,
         radius,
-        fit: fitter.finish(noise),
+        fit,
     })
 }
 
