@@ -86,6 +86,14 @@ fn cavity_artefacts_cancel_and_the_secondary_shows_in_the_difference() {
 }
 
 async fn run(task: TaskKind, seed: u64) -> optalign::run::RunSummary {
+    run_into(task, seed, None).await
+}
+
+async fn run_into(
+    task: TaskKind,
+    seed: u64,
+    out_dir: Option<std::path::PathBuf>,
+) -> optalign::run::RunSummary {
     let scenario = ScenarioFile::default();
     let limits = scenario.tasks.clone();
     let mut rig = SimRig::new(task, &scenario, seed, MotorPath::InProcess)
@@ -98,7 +106,7 @@ async fn run(task: TaskKind, seed: u64) -> optalign::run::RunSummary {
     };
     let mut built = build_policy("vision", &brief, &PolicyOptions::default()).unwrap();
     let options = RunOptions {
-        out_dir: None,
+        out_dir,
         seed,
         ..Default::default()
     };
@@ -108,10 +116,31 @@ async fn run(task: TaskKind, seed: u64) -> optalign::run::RunSummary {
 }
 
 #[tokio::test]
-async fn the_vision_agent_aligns_the_michelson() {
-    let summary = run(TaskKind::Michelson, 6).await;
+async fn the_vision_agent_aligns_the_michelson_and_its_claims_match_the_truth() {
+    let dir = tempfile::tempdir().unwrap();
+    let summary = run_into(TaskKind::Michelson, 6, Some(dir.path().to_path_buf())).await;
     assert!(summary.success && summary.declared_done, "{summary:?}");
     assert!(summary.terminal_error.unwrap() < 10.0, "{summary:?}");
+    assert!(summary.evaluations_used <= 12, "{summary:?}");
+    let transcript = std::fs::read_to_string(dir.path().join("transcript.jsonl")).unwrap();
+    let steps: Vec<serde_json::Value> = transcript
+        .lines()
+        .map(|line| serde_json::from_str(line).unwrap())
+        .filter(|entry: &serde_json::Value| entry["type"] == "step")
+        .collect();
+    assert!(steps.iter().all(|step| step["claims"]["phase"].is_string()));
+    // Where the agent says the beams end up, judged against the hidden beam centres.
+    let last = steps.last().unwrap();
+    for k in 0..2 {
+        let claimed = &last["claims"]["mirrors"][k]["predicted_px"];
+        let truth = &last["score"]["beam_centres_px"][k];
+        let [cx, cy, tx, ty] = [&claimed[0], &claimed[1], &truth[0], &truth[1]]
+            .map(|v| v.as_f64().unwrap_or(f64::NAN));
+        assert!(
+            distance([cx, cy], [tx, ty]) < 3.0,
+            "mirror {k}: {claimed} vs {truth}"
+        );
+    }
 }
 
 #[tokio::test]

@@ -142,6 +142,25 @@ impl MichelsonAgent {
         }
     }
 
+    /// What the agent believes after its last decision, for the transcript: what the
+    /// action was for and, per mirror, its sightings, fitted response and where it expects
+    /// that mirror's beam (px, x right, y down).
+    pub fn claims(&self, done: bool) -> serde_json::Value {
+        let phase = match (done, self.last) {
+            (true, _) => "both beams to the centre, done".to_string(),
+            (_, Step::Start) => "start".to_string(),
+            (_, Step::Probe { k, parked: None }) => format!("probe mirror {}", k + 1),
+            (_, Step::Probe { k, parked: Some(_) }) => {
+                format!("probe mirror {}, mirror {} parked", k + 1, 2 - k)
+            }
+            (_, Step::Check { .. }) => "check both beams apart near the centre".to_string(),
+        };
+        let mirrors: Vec<_> = (0..2)
+            .map(|k| self.trackers[k].claims(self.mirror(k)))
+            .collect();
+        serde_json::json!({ "phase": phase, "mirrors": mirrors })
+    }
+
     /// Learns from what the last action showed; true when a check confirmed both maps.
     fn observe(&mut self, frame: &Frame, spots: &[BeamSpot]) -> bool {
         let Some((before, before_spots)) = self.previous.take() else {

@@ -50,11 +50,21 @@ impl Policy for VisionPolicy {
     async fn decide(&mut self, observation: &Observation) -> Result<Decision, PolicyError> {
         let rejected = matches!(observation.feedback, Feedback::Rejected { .. });
         let (image, remaining) = (&observation.image, observation.remaining);
-        let action = match &mut self.agent {
-            Agent::Michelson(agent) => agent.decide(image, rejected, remaining),
-            Agent::Cavity(agent) => agent.decide(image, rejected, remaining),
-            Agent::Relay(agent) => Action::Relay(agent.decide(image, rejected, remaining)),
+        let (action, claims) = match &mut self.agent {
+            Agent::Michelson(agent) => {
+                let action = agent.decide(image, rejected, remaining);
+                let claims = agent.claims(action.is_done());
+                (action, Some(claims))
+            }
+            Agent::Cavity(agent) => (agent.decide(image, rejected, remaining), None),
+            Agent::Relay(agent) => (
+                Action::Relay(agent.decide(image, rejected, remaining)),
+                None,
+            ),
         };
-        Ok(Decision::new(action))
+        Ok(Decision {
+            claims,
+            ..Decision::new(action)
+        })
     }
 }

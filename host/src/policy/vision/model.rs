@@ -179,6 +179,21 @@ impl Tracker {
         })
     }
 
+    /// What the tracker believes, for the transcript: how many sightings of each kind, the
+    /// fitted response and where it puts the feature for `command`.
+    pub fn claims(&self, command: Vec2) -> serde_json::Value {
+        let model = self.local_model();
+        serde_json::json!({
+            "sightings": {
+                "clean": self.clean.len(),
+                "partial": self.partial.len(),
+                "missing": self.missing.len(),
+            },
+            "response_px_per_step": model.map(|m| m.gain),
+            "predicted_px": model.map(|m| m.predict(command)),
+        })
+    }
+
     /// Records a clean observation, replacing an earlier one at the same command.
     pub fn add_clean(&mut self, command: Vec2, image: Vec2) {
         self.clean.retain(|(u, _)| distance(*u, command) >= 1.0);
