@@ -122,31 +122,46 @@ async fn the_vision_agent_aligns_the_michelson_and_its_claims_match_the_truth() 
     assert!(summary.success && summary.declared_done, "{summary:?}");
     assert!(summary.terminal_error.unwrap() < 10.0, "{summary:?}");
     assert!(summary.evaluations_used <= 12, "{summary:?}");
-    let transcript = std::fs::read_to_string(dir.path().join("transcript.jsonl")).unwrap();
+    let steps = transcript_steps(dir.path());
+    // Where the agent says the beams end up, judged against the hidden beam centres.
+    let last = steps.last().unwrap();
+    for k in 0..2 {
+        let claimed = point(&last["claims"]["mirrors"][k]["predicted_px"]);
+        let truth = point(&last["score"]["beam_centres_px"][k]);
+        assert!(
+            distance(claimed, truth) < 3.0,
+            "mirror {k}: {claimed:?} vs {truth:?}"
+        );
+    }
+}
+
+/// The step entries of a run's transcript; every one carries the agent's claims.
+fn transcript_steps(dir: &std::path::Path) -> Vec<serde_json::Value> {
+    let transcript = std::fs::read_to_string(dir.join("transcript.jsonl")).unwrap();
     let steps: Vec<serde_json::Value> = transcript
         .lines()
         .map(|line| serde_json::from_str(line).unwrap())
         .filter(|entry: &serde_json::Value| entry["type"] == "step")
         .collect();
     assert!(steps.iter().all(|step| step["claims"]["phase"].is_string()));
-    // Where the agent says the beams end up, judged against the hidden beam centres.
-    let last = steps.last().unwrap();
-    for k in 0..2 {
-        let claimed = &last["claims"]["mirrors"][k]["predicted_px"];
-        let truth = &last["score"]["beam_centres_px"][k];
-        let [cx, cy, tx, ty] = [&claimed[0], &claimed[1], &truth[0], &truth[1]]
-            .map(|v| v.as_f64().unwrap_or(f64::NAN));
-        assert!(
-            distance([cx, cy], [tx, ty]) < 3.0,
-            "mirror {k}: {claimed} vs {truth}"
-        );
-    }
+    steps
+}
+
+/// A JSON `[x, y]` as a point (NaN where missing).
+fn point(value: &serde_json::Value) -> [f64; 2] {
+    [&value[0], &value[1]].map(|v| v.as_f64().unwrap_or(f64::NAN))
 }
 
 #[tokio::test]
-async fn the_vision_agent_aligns_the_cavity() {
-    let summary = run(TaskKind::Cavity, 0).await;
+async fn the_vision_agent_aligns_the_cavity_and_its_claims_match_the_truth() {
+    let dir = tempfile::tempdir().unwrap();
+    let summary = run_into(TaskKind::Cavity, 0, Some(dir.path().to_path_buf())).await;
     assert!(summary.success && summary.declared_done, "{summary:?}");
+    let steps = transcript_steps(dir.path());
+    let last = steps.last().unwrap();
+    let claimed = point(&last["claims"]["secondary"]["predicted_px"]);
+    let truth = point(&last["score"]["secondary_centre_px"]);
+    assert!(distance(claimed, truth) < 3.0, "{claimed:?} vs {truth:?}");
 }
 
 #[tokio::test]

@@ -99,6 +99,23 @@ impl CavityAgent {
         self.send(u, Step::Check(Some(model.predict(u))), false)
     }
 
+    /// What the agent believes after its last decision, for the transcript: what the
+    /// action was for, the target (the primary's centre, px) and its secondary tracker's
+    /// sightings, fitted response and where it expects the secondary.
+    pub fn claims(&self, done: bool) -> serde_json::Value {
+        let phase = match (done, self.last) {
+            (true, _) => "secondary to the primary, done",
+            (_, Step::Start) => "start",
+            (_, Step::Probe) => "probe",
+            (_, Step::Check(_)) => "check beside the primary",
+        };
+        serde_json::json!({
+            "phase": phase,
+            "target_px": self.target,
+            "secondary": self.tracker.claims(self.command),
+        })
+    }
+
     /// Learns from the last move; true when a check point matched its prediction.
     fn observe(&mut self, frame: &Frame, target: Vec2) -> bool {
         let Some(before) = self.previous.take() else {

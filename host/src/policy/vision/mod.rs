@@ -56,7 +56,11 @@ impl Policy for VisionPolicy {
                 let claims = agent.claims(action.is_done());
                 (action, Some(claims))
             }
-            Agent::Cavity(agent) => (agent.decide(image, rejected, remaining), None),
+            Agent::Cavity(agent) => {
+                let action = agent.decide(image, rejected, remaining);
+                let claims = agent.claims(action.is_done());
+                (action, Some(claims))
+            }
             Agent::Relay(agent) => (
                 Action::Relay(agent.decide(image, rejected, remaining)),
                 None,
