@@ -1,7 +1,8 @@
 //! The Michelson agent: learns each mirror's motor-to-image response by moving one mirror
 //! at a time and watching which beam moves (the other stays put in the frame difference).
 //! Each probe after the first also steers the beam towards the centre along what is already
-//! known, so it stays in view; beams cut by the border are located by a spot fit. With
+//! known, so it stays in view; beams cut by the border are located by a spot fit. While
+//! the second mirror is probed, the first mirror's beam is parked out of the way. With
 //! both maps known it places the two beams a little apart on either side of the centre,
 //! where both are seen whole: when they land where the maps predicted it commands both to
 //! the centre (where they overlap in fringes) and declares done; otherwise it refits and
