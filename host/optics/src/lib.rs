@@ -23,6 +23,7 @@ pub mod seeds;
 
 pub use cavity::{Cavity, CavityTruth};
 pub use frame::{Frame, FrameError};
+pub use math::normal_cdf;
 pub use michelson::{Michelson, MichelsonTruth};
 pub use relay::{
     CameraPose, MirrorTruth, Relay, RelayTruth, Station, StationTruth, UnknownStation,

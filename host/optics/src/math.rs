@@ -17,7 +17,7 @@ fn erfc(x: f64) -> f64 {
 }
 
 /// Standard normal cumulative distribution function.
-pub(crate) fn normal_cdf(x: f64) -> f64 {
+pub fn normal_cdf(x: f64) -> f64 {
     0.5 * erfc(-x / std::f64::consts::SQRT_2)
 }
 
@@ -53,10 +53,21 @@ mod tests {
     use super::*;
 
     #[test]
-    fn normal_cdf_matches_known_values() {
-        assert!((normal_cdf(0.0) - 0.5).abs() < 1e-7);
-        assert!((normal_cdf(1.0) - 0.841_344_746).abs() < 1e-7);
-        assert!((normal_cdf(-2.0) - 0.022_750_132).abs() < 1e-7);
+    fn normal_cdf_matches_tabulated_values_deep_into_the_tail() {
+        for (z, expected) in [
+            (0.0, 0.5),
+            (1.0, 0.841_344_746),
+            (1.959_963_985, 0.975),
+            (-2.0, 0.022_750_132),
+            (-3.0, 0.001_349_898),
+            (-6.0, 9.865_876e-10),
+        ] {
+            let got = normal_cdf(z);
+            assert!(
+                (got - expected).abs() <= 2e-7 * expected,
+                "Φ({z}) = {got}, expected {expected}"
+            );
+        }
         assert_eq!(normal_cdf(40.0), 1.0);
     }
 
