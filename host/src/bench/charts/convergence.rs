@@ -6,7 +6,9 @@
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
-use super::{BOLD_GRID, Chart, DrawResult, LIGHT_GRID, error_unit, log_range, policy_colour, tick};
+use super::{
+    BOLD_GRID, Chart, DrawResult, LIGHT_GRID, error_unit, legend, log_range, policy_colour, tick,
+};
 use crate::bench::results::{mean, std_dev};
 use crate::run::RunSummary;
 use crate::task::TaskKind;
@@ -185,13 +187,7 @@ impl Chart for Convergence {
                         PathElement::new(vec![(x, y), (x + 16, y)], colour.stroke_width(2))
                     });
             }
-            chart
-                .configure_series_labels()
-                .position(SeriesLabelPosition::UpperLeft)
-                .background_style(WHITE.mix(0.85))
-                .border_style(BLACK.mix(0.4))
-                .label_font(("sans-serif", 13))
-                .draw()?;
+            legend(&mut chart, SeriesLabelPosition::UpperLeft, 13)?;
         } else {
             let (lo, hi) = log_range(self.series.iter().flat_map(|s| {
                 s.mean
@@ -228,13 +224,7 @@ impl Chart for Convergence {
                         PathElement::new(vec![(x, y), (x + 16, y)], colour.stroke_width(2))
                     });
             }
-            chart
-                .configure_series_labels()
-                .position(SeriesLabelPosition::UpperRight)
-                .background_style(WHITE.mix(0.85))
-                .border_style(BLACK.mix(0.4))
-                .label_font(("sans-serif", 13))
-                .draw()?;
+            legend(&mut chart, SeriesLabelPosition::UpperRight, 13)?;
         }
         Ok(())
     }

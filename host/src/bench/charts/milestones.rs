@@ -6,7 +6,7 @@
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
-use super::{BOLD_GRID, Chart, DrawResult, LIGHT_GRID, policy_colour, tick};
+use super::{BOLD_GRID, Chart, DrawResult, LIGHT_GRID, legend, policy_colour, tick};
 use crate::bench::results::{MilestoneStats, PolicyStats};
 use crate::run::RunSummary;
 
@@ -125,13 +125,7 @@ impl Chart for Milestones {
                 )))?;
             }
         }
-        chart
-            .configure_series_labels()
-            .position(SeriesLabelPosition::UpperLeft)
-            .background_style(WHITE.mix(0.85))
-            .border_style(BLACK.mix(0.4))
-            .label_font(("sans-serif", 13))
-            .draw()?;
+        legend(&mut chart, SeriesLabelPosition::UpperLeft, 13)?;
         Ok(())
     }
 }

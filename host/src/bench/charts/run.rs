@@ -8,7 +8,8 @@ use plotters::coord::Shift;
 use plotters::prelude::*;
 
 use super::{
-    BOLD_GRID, Chart, DrawResult, LIGHT_GRID, error_unit, log_range, policy_colour, save, tick,
+    BOLD_GRID, Chart, DrawResult, LIGHT_GRID, error_unit, legend, log_range, policy_colour, save,
+    tick,
 };
 use crate::run::RunSummary;
 
@@ -95,13 +96,7 @@ impl Chart for RunChart<'_> {
                 )))?;
             }
         }
-        chart
-            .configure_series_labels()
-            .position(SeriesLabelPosition::UpperRight)
-            .background_style(WHITE.mix(0.85))
-            .border_style(BLACK.mix(0.4))
-            .label_font(("sans-serif", 12))
-            .draw()?;
+        legend(&mut chart, SeriesLabelPosition::UpperRight, 12)?;
         Ok(())
     }
 }

@@ -7,7 +7,9 @@
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
-use super::{BOLD_GRID, Chart, DrawResult, LIGHT_GRID, error_unit, log_range, policy_colour, tick};
+use super::{
+    BOLD_GRID, Chart, DrawResult, LIGHT_GRID, error_unit, legend, log_range, policy_colour, tick,
+};
 use crate::bench::results::pareto_front;
 use crate::run::RunSummary;
 use crate::task::TaskKind;
@@ -151,13 +153,7 @@ impl SpeedAccuracy {
             )))?;
         }
         if !wall_clock {
-            chart
-                .configure_series_labels()
-                .position(SeriesLabelPosition::UpperLeft)
-                .background_style(WHITE.mix(0.85))
-                .border_style(BLACK.mix(0.4))
-                .label_font(("sans-serif", 13))
-                .draw()?;
+            legend(&mut chart, SeriesLabelPosition::UpperLeft, 13)?;
         }
         Ok(())
     }

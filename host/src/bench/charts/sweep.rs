@@ -4,7 +4,9 @@
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
-use super::{BOLD_GRID, Chart, DrawResult, LIGHT_GRID, error_unit, log_range, policy_colour, tick};
+use super::{
+    BOLD_GRID, Chart, DrawResult, LIGHT_GRID, error_unit, legend, log_range, policy_colour, tick,
+};
 use crate::bench::results::{PolicyStats, select};
 use crate::bench::{Knob, RunRecord, Setting};
 use crate::task::TaskKind;
@@ -102,13 +104,7 @@ impl SweepChart {
                     .map(|p| Circle::new(p, 4, colour.filled())),
             )?;
         }
-        chart
-            .configure_series_labels()
-            .position(SeriesLabelPosition::MiddleRight)
-            .background_style(WHITE.mix(0.85))
-            .border_style(BLACK.mix(0.4))
-            .label_font(("sans-serif", 12))
-            .draw()?;
+        legend(&mut chart, SeriesLabelPosition::MiddleRight, 12)?;
         Ok(())
     }
 
