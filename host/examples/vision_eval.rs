@@ -21,11 +21,7 @@ async fn main() -> anyhow::Result<()> {
         let (mut errors, mut evaluations, mut successes) = (Vec::new(), Vec::new(), 0);
         for seed in 0..10 {
             let mut rig = SimRig::new(task, &scenario, seed, MotorPath::InProcess).await?;
-            let brief = TaskBrief {
-                task,
-                limits: limits.clone(),
-                budget: limits.budget(task),
-            };
+            let brief = TaskBrief::new(task, &limits);
             let mut built = build_policy(
                 "vision",
                 &brief,

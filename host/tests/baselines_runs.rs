@@ -17,11 +17,7 @@ async fn run(
     scenario: &ScenarioFile,
 ) -> (RunSummary, Vec<StepRecord>) {
     let dir = tempfile::tempdir().unwrap();
-    let brief = TaskBrief {
-        task,
-        limits: scenario.tasks.clone(),
-        budget: scenario.tasks.budget(task),
-    };
+    let brief = TaskBrief::new(task, &scenario.tasks);
     let mut built = build_policy(
         policy,
         &brief,

@@ -43,9 +43,22 @@ fn rig_file(text: &str, dir: &Path) -> RigFile {
     RigFile::parse(text, dir).unwrap()
 }
 
-/// Compensation equal to the true dead band, as after `optalign calibrate backlash --write`.
-async fn compensate(url: &str, axes: u8, backlash: u16) {
-    let client = optalign::link::Client::connect(
+/// The rig-file tables of the simulated camera for `seed`, with no settling waits.
+fn instant_sim_camera(seed: u64) -> String {
+    format!(
+        r#"[camera]
+kind = "sim"
+seed = {seed}
+[settle]
+after_motor_s = 0
+after_camera_s = 0
+"#
+    )
+}
+
+/// A client holding the peers' access key.
+async fn keyed_client(url: &str) -> optalign::link::Client {
+    optalign::link::Client::connect(
         url.parse().unwrap(),
         optalign::link::ClientOptions {
             key: Some(optalign_protocol::auth::derive_key(KEY)),
@@ -53,7 +66,12 @@ async fn compensate(url: &str, axes: u8, backlash: u16) {
         },
     )
     .await
-    .unwrap();
+    .unwrap()
+}
+
+/// Compensation equal to the true dead band, as after `optalign calibrate backlash --write`.
+async fn compensate(url: &str, axes: u8, backlash: u16) {
+    let client = keyed_client(url).await;
     for axis in 0..axes {
         let mut config = client.get_config(axis).await.unwrap();
         config.backlash = backlash;
@@ -69,11 +87,7 @@ async fn run_vision(rig: RigFile) -> optalign::run::RunSummary {
     let limits = rig.limits.clone();
     let task = rig.task;
     let mut bench = LabRig::connect(rig).await.unwrap();
-    let brief = TaskBrief {
-        task,
-        limits: limits.clone(),
-        budget: limits.budget(task),
-    };
+    let brief = TaskBrief::new(task, &limits);
     let mut built = build_policy("vision", &brief, &PolicyOptions::default()).unwrap();
     let options = RunOptions {
         out_dir: None,
@@ -158,16 +172,12 @@ key_env = "OPTALIGN_LAB_KEY"
 [axes]
 x = {{ controller = "incoupler", axis = 3 }}
 y = {{ controller = "incoupler", axis = 1 }}
-[camera]
-kind = "sim"
-seed = {seed}
-[settle]
-after_motor_s = 0
-after_camera_s = 0
-[scoring]
+{camera}[scoring]
 cavity_aligned = [{}, {}]
 "#,
-            -offsets[0], -offsets[1]
+            -offsets[0],
+            -offsets[1],
+            camera = instant_sim_camera(seed),
         ),
         dir.path(),
     );
@@ -215,15 +225,10 @@ m3v = {{ controller = "b", axis = 0 }}
 m3h = {{ controller = "b", axis = 1 }}
 m4v = {{ controller = "b", axis = 2 }}
 m4h = {{ controller = "b", axis = 3 }}
-[camera]
+{camera}[mover]
 kind = "sim"
-seed = {seed}
-[mover]
-kind = "sim"
-[settle]
-after_motor_s = 0
-after_camera_s = 0
-"#
+"#,
+            camera = instant_sim_camera(seed),
         ),
         dir.path(),
     );
@@ -260,27 +265,14 @@ mirror_1_axis_1 = {{ controller = "mounts", axis = 0 }}
 mirror_1_axis_2 = {{ controller = "mounts", axis = 1 }}
 mirror_2_axis_1 = {{ controller = "mounts", axis = 2 }}
 mirror_2_axis_2 = {{ controller = "mounts", axis = 3 }}
-[camera]
-kind = "sim"
-seed = {seed}
-[settle]
-after_motor_s = 0
-after_camera_s = 0
-"#
+{camera}"#,
+        camera = instant_sim_camera(seed),
     )
 }
 
 /// Moves the simulated mounts so mirror 1's beam is centred and mirror 2's is off-screen.
 async fn stage_michelson(url: &str, offsets: [i32; 4]) {
-    let client = optalign::link::Client::connect(
-        url.parse().unwrap(),
-        optalign::link::ClientOptions {
-            key: Some(optalign_protocol::auth::derive_key(KEY)),
-            ..Default::default()
-        },
-    )
-    .await
-    .unwrap();
+    let client = keyed_client(url).await;
     let targets = [-offsets[0], -offsets[1], -offsets[2] + 9000, -offsets[3]];
     let values: Vec<optalign_protocol::AxisValue> = targets
         .iter()

@@ -99,11 +99,7 @@ async fn run_into(
     let mut rig = SimRig::new(task, &scenario, seed, MotorPath::InProcess)
         .await
         .unwrap();
-    let brief = TaskBrief {
-        task,
-        limits: limits.clone(),
-        budget: limits.budget(task),
-    };
+    let brief = TaskBrief::new(task, &limits);
     let mut built = build_policy("vision", &brief, &PolicyOptions::default()).unwrap();
     let options = RunOptions {
         out_dir,

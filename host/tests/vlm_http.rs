@@ -79,11 +79,7 @@ async fn run(
     };
     tweak(&mut vlm);
     let scenario = ScenarioFile::default();
-    let brief = TaskBrief {
-        task,
-        limits: scenario.tasks.clone(),
-        budget: scenario.tasks.budget(task),
-    };
+    let brief = TaskBrief::new(task, &scenario.tasks);
     let mut built = build_policy(
         "vlm",
         &brief,

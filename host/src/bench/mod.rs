@@ -149,11 +149,7 @@ pub fn run_matrix(
 pub async fn run_one(spec: &RunSpec, options: &MatrixOptions) -> anyhow::Result<RunRecord> {
     let started = Instant::now();
     let scenario = spec.scenario.as_ref();
-    let brief = TaskBrief {
-        task: spec.task,
-        limits: scenario.tasks.clone(),
-        budget: scenario.tasks.budget(spec.task),
-    };
+    let brief = TaskBrief::new(spec.task, &scenario.tasks);
     let policy_options = PolicyOptions {
         seed: spec.seed,
         vlm: options.vlm.clone(),

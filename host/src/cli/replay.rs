@@ -160,11 +160,7 @@ pub async fn run(args: ReplayArgs) -> anyhow::Result<()> {
     let mut options = options.unwrap_or_else(|| VlmOptions::new("replay"));
     // The prompt does not affect a replay, and its file may be gone.
     options.prompt = None;
-    let brief = TaskBrief {
-        task: recorded.task,
-        limits: scenario.tasks.clone(),
-        budget: scenario.tasks.budget(recorded.task),
-    };
+    let brief = TaskBrief::new(recorded.task, &scenario.tasks);
     let answers = completions.len();
     let mut policy =
         VlmPolicy::with_backend(&brief, &options, Box::new(ReplayBackend::new(completions)))?;

@@ -128,11 +128,7 @@ pub async fn run(args: RunArgs) -> anyhow::Result<()> {
     let limits = bench
         .as_ref()
         .map_or_else(|| scenario.tasks.clone(), |b| b.limits.clone());
-    let brief = TaskBrief {
-        task: args.task,
-        limits: limits.clone(),
-        budget: limits.budget(args.task),
-    };
+    let brief = TaskBrief::new(args.task, &limits);
     let vlm = args.vlm.options();
     if vlm.is_some() && args.policy != "vlm" {
         anyhow::bail!("--model applies to --policy vlm only");

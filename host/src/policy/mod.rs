@@ -34,6 +34,17 @@ pub struct TaskBrief {
     pub budget: usize,
 }
 
+impl TaskBrief {
+    /// The brief for `task` under `limits`, with the task's own evaluation budget.
+    pub fn new(task: TaskKind, limits: &TaskLimits) -> Self {
+        Self {
+            task,
+            limits: limits.clone(),
+            budget: limits.budget(task),
+        }
+    }
+}
+
 /// What happened to the previous decision.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "kind", rename_all = "snake_case")]

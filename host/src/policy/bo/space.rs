@@ -258,11 +258,7 @@ mod tests {
 
     fn brief(task: TaskKind) -> TaskBrief {
         let limits = TaskLimits::default();
-        TaskBrief {
-            task,
-            budget: limits.budget(task),
-            limits,
-        }
+        TaskBrief::new(task, &limits)
     }
 
     fn observation(remaining: usize) -> Observation {
