@@ -6,9 +6,7 @@
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
-use super::{
-    BOLD_GRID, Chart, DrawResult, LIGHT_GRID, error_unit, legend, log_range, policy_colour, tick,
-};
+use super::{Chart, DrawResult, error_unit, grid_mesh, legend, log_range, policy_colour};
 use crate::bench::results::{mean, std_dev};
 use crate::run::RunSummary;
 use crate::task::TaskKind;
@@ -160,14 +158,8 @@ impl Chart for Convergence {
         let x_range = 0f64..self.budget as f64;
         if relay {
             let mut chart = builder.build_cartesian_2d(x_range, 0f64..4.2)?;
-            chart
-                .configure_mesh()
+            grid_mesh(&mut chart)
                 .y_labels(5)
-                .bold_line_style(BOLD_GRID)
-                .light_line_style(LIGHT_GRID)
-                .max_light_lines(2)
-                .x_label_formatter(&tick)
-                .y_label_formatter(&tick)
                 .x_desc("evaluation")
                 .y_desc("mirrors aligned")
                 .label_style(("sans-serif", 13))
@@ -197,14 +189,8 @@ impl Chart for Convergence {
                     .chain(s.mean.iter().copied())
             }));
             let mut chart = builder.build_cartesian_2d(x_range, (lo..hi).log_scale())?;
-            chart
-                .configure_mesh()
+            grid_mesh(&mut chart)
                 .y_labels(6)
-                .bold_line_style(BOLD_GRID)
-                .light_line_style(LIGHT_GRID)
-                .max_light_lines(2)
-                .x_label_formatter(&tick)
-                .y_label_formatter(&tick)
                 .x_desc("evaluation")
                 .y_desc(format!("best-so-far error ({})", error_unit(self.task)))
                 .label_style(("sans-serif", 13))

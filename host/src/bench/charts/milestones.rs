@@ -6,7 +6,7 @@
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
-use super::{BOLD_GRID, Chart, DrawResult, LIGHT_GRID, legend, policy_colour, tick};
+use super::{Chart, DrawResult, grid_mesh, legend, policy_colour};
 use crate::bench::results::{MilestoneStats, PolicyStats};
 use crate::run::RunSummary;
 
@@ -61,12 +61,7 @@ impl Chart for Milestones {
             .x_label_area_size(40)
             .y_label_area_size(64)
             .build_cartesian_2d(-0.5f64..3.5f64, 0f64..self.budget as f64 * 1.1)?;
-        chart
-            .configure_mesh()
-            .bold_line_style(BOLD_GRID)
-            .light_line_style(LIGHT_GRID)
-            .max_light_lines(2)
-            .y_label_formatter(&tick)
+        grid_mesh(&mut chart)
             .disable_x_mesh()
             .x_labels(5)
             .x_label_formatter(&|x| {

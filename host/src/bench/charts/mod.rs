@@ -15,6 +15,8 @@ use std::sync::OnceLock;
 use anyhow::Context;
 use image::codecs::png::{CompressionType, FilterType, PngEncoder};
 use image::{ExtendedColorType, ImageEncoder};
+use plotters::chart::MeshStyle;
+use plotters::coord::ranged1d::ValueFormatter;
 use plotters::coord::{CoordTranslate, Shift};
 use plotters::prelude::*;
 use plotters::style::{FontStyle, register_font};
@@ -49,6 +51,25 @@ fn legend<'a, DB: DrawingBackend + 'a, CT: CoordTranslate>(
         .border_style(BLACK.mix(0.4))
         .label_font(("sans-serif", font_size))
         .draw()
+}
+
+/// The mesh every bench chart starts from: its grid styles and plain number labels on
+/// both axes; the caller adds the axis descriptions and draws it.
+fn grid_mesh<'a, 'b, DB, X, Y>(
+    chart: &'b mut ChartContext<'a, DB, Cartesian2d<X, Y>>,
+) -> MeshStyle<'a, 'b, X, Y, DB>
+where
+    DB: DrawingBackend,
+    X: Ranged<ValueType = f64> + ValueFormatter<f64>,
+    Y: Ranged<ValueType = f64> + ValueFormatter<f64>,
+{
+    let mut mesh = chart.configure_mesh();
+    mesh.bold_line_style(BOLD_GRID)
+        .light_line_style(LIGHT_GRID)
+        .max_light_lines(2)
+        .x_label_formatter(&tick)
+        .y_label_formatter(&tick);
+    mesh
 }
 
 /// Registers the bundled font as every family the charts use.
@@ -133,11 +154,11 @@ pub fn error_unit(task: TaskKind) -> &'static str {
 }
 
 /// Grid line colours of every chart.
-pub(crate) const BOLD_GRID: RGBColor = RGBColor(205, 205, 205);
-pub(crate) const LIGHT_GRID: RGBColor = RGBColor(240, 240, 240);
+const BOLD_GRID: RGBColor = RGBColor(205, 205, 205);
+const LIGHT_GRID: RGBColor = RGBColor(240, 240, 240);
 
 /// An axis label without needless decimals: 1500, 40, 2.5, 0.25.
-pub(crate) fn tick(value: &f64) -> String {
+fn tick(value: &f64) -> String {
     if value.abs() >= 10.0 {
         return format!("{value:.0}");
     }

@@ -7,10 +7,7 @@ use std::path::{Path, PathBuf};
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
-use super::{
-    BOLD_GRID, Chart, DrawResult, LIGHT_GRID, error_unit, legend, log_range, policy_colour, save,
-    tick,
-};
+use super::{Chart, DrawResult, error_unit, grid_mesh, legend, log_range, policy_colour, save};
 use crate::run::RunSummary;
 
 struct RunChart<'a> {
@@ -39,14 +36,8 @@ impl Chart for RunChart<'_> {
             .x_label_area_size(34)
             .y_label_area_size(60)
             .build_cartesian_2d(0f64..run.budget.max(1) as f64, (lo..hi).log_scale())?;
-        chart
-            .configure_mesh()
+        grid_mesh(&mut chart)
             .y_labels(6)
-            .bold_line_style(BOLD_GRID)
-            .light_line_style(LIGHT_GRID)
-            .max_light_lines(2)
-            .x_label_formatter(&tick)
-            .y_label_formatter(&tick)
             .x_desc("evaluation")
             .y_desc(format!("error ({})", error_unit(run.task)))
             .label_style(("sans-serif", 12))

@@ -7,9 +7,7 @@
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
-use super::{
-    BOLD_GRID, Chart, DrawResult, LIGHT_GRID, error_unit, legend, log_range, policy_colour, tick,
-};
+use super::{Chart, DrawResult, error_unit, grid_mesh, legend, log_range, policy_colour};
 use crate::bench::results::pareto_front;
 use crate::run::RunSummary;
 use crate::task::TaskKind;
@@ -74,14 +72,8 @@ impl SpeedAccuracy {
             .x_label_area_size(40)
             .y_label_area_size(64)
             .build_cartesian_2d(0f64..x_max, (y_lo..y_hi).log_scale())?;
-        chart
-            .configure_mesh()
+        grid_mesh(&mut chart)
             .y_labels(6)
-            .bold_line_style(BOLD_GRID)
-            .light_line_style(LIGHT_GRID)
-            .max_light_lines(2)
-            .x_label_formatter(&tick)
-            .y_label_formatter(&tick)
             .x_desc(if wall_clock {
                 "modelled wall-clock (s)"
             } else {

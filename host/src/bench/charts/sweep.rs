@@ -4,9 +4,7 @@
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
-use super::{
-    BOLD_GRID, Chart, DrawResult, LIGHT_GRID, error_unit, legend, log_range, policy_colour, tick,
-};
+use super::{Chart, DrawResult, error_unit, grid_mesh, legend, log_range, policy_colour};
 use crate::bench::results::{PolicyStats, select};
 use crate::bench::{Knob, RunRecord, Setting};
 use crate::task::TaskKind;
@@ -79,13 +77,7 @@ impl SweepChart {
             .x_label_area_size(36)
             .y_label_area_size(50)
             .build_cartesian_2d(self.x_range.0..self.x_range.1, 0f64..1.05)?;
-        chart
-            .configure_mesh()
-            .bold_line_style(BOLD_GRID)
-            .light_line_style(LIGHT_GRID)
-            .max_light_lines(2)
-            .x_label_formatter(&tick)
-            .y_label_formatter(&tick)
+        grid_mesh(&mut chart)
             .x_desc(self.knob.label())
             .label_style(("sans-serif", 12))
             .draw()?;
@@ -128,14 +120,8 @@ impl SweepChart {
             .x_label_area_size(36)
             .y_label_area_size(60)
             .build_cartesian_2d(self.x_range.0..self.x_range.1, (lo..hi).log_scale())?;
-        chart
-            .configure_mesh()
+        grid_mesh(&mut chart)
             .y_labels(6)
-            .bold_line_style(BOLD_GRID)
-            .light_line_style(LIGHT_GRID)
-            .max_light_lines(2)
-            .x_label_formatter(&tick)
-            .y_label_formatter(&tick)
             .x_desc(self.knob.label())
             .label_style(("sans-serif", 12))
             .draw()?;
