@@ -136,6 +136,9 @@ fn room(from: Vec2, direction: Vec2, view: Vec2) -> f64 {
 /// Commands closer than this count as the same probe, steps.
 const SAME_COMMAND: f64 = 100.0;
 
+/// Commands closer than this are the very same command, steps.
+pub const SAME_STEP: f64 = 1.0;
+
 /// What the agent knows about one feature driven by one two-axis actuator.
 #[derive(Clone, Debug)]
 pub struct Tracker {
@@ -196,7 +199,8 @@ impl Tracker {
 
     /// Records a clean observation, replacing an earlier one at the same command.
     pub fn add_clean(&mut self, command: Vec2, image: Vec2) {
-        self.clean.retain(|(u, _)| distance(*u, command) >= 1.0);
+        self.clean
+            .retain(|(u, _)| distance(*u, command) >= SAME_STEP);
         self.clean.push((command, image));
     }
 
@@ -208,17 +212,10 @@ impl Tracker {
         self.missing.push(command);
     }
 
-    /// Whether any observation was made at exactly `command` (within a step).
-    pub fn tried_exactly(&self, command: Vec2) -> bool {
-        let at = |u: &Vec2| distance(*u, command) < 1.0;
-        self.clean.iter().any(|(u, _)| at(u))
-            || self.partial.iter().any(|(u, _)| at(u))
-            || self.missing.iter().any(at)
-    }
-
-    /// Whether any observation was made at (about) `command`.
-    fn tried(&self, command: Vec2) -> bool {
-        let near = |u: &Vec2| distance(*u, command) < SAME_COMMAND;
+    /// Whether any observation (clean, partial or missing) was made within `within` steps
+    /// of `command`.
+    pub fn tried_within(&self, command: Vec2, within: f64) -> bool {
+        let near = |u: &Vec2| distance(*u, command) < within;
         self.clean.iter().any(|(u, _)| near(u))
             || self.partial.iter().any(|(u, _)| near(u))
             || self.missing.iter().any(near)
@@ -283,7 +280,7 @@ impl Tracker {
             .into_iter()
             .chain(rings(start, self.probe, 1..=12))
             .map(|c| self.clamp(c))
-            .find(|c| !self.tried(*c))
+            .find(|c| !self.tried_within(*c, SAME_COMMAND))
             .unwrap_or_else(|| self.clamp([start[0] + px, start[1] + py]))
     }
 }
@@ -367,7 +364,7 @@ impl Tracker {
             })
             .find(|c| {
                 let spread = (c[0] - base[0]) * across[0] + (c[1] - base[1]) * across[1];
-                spread.abs() >= self.min_spread && !self.tried(*c)
+                spread.abs() >= self.min_spread && !self.tried_within(*c, SAME_COMMAND)
             })
     }
 }

@@ -4,7 +4,7 @@
 
 use optalign_optics::Frame;
 
-use super::model::{Tracker, Vec2, distance};
+use super::model::{SAME_STEP, Tracker, Vec2, distance};
 use crate::imaging::{BeamSpot, changes};
 
 /// Where a moved feature was seen.
@@ -165,7 +165,7 @@ impl Tracker {
     /// start). A vanished blob at a command already looked at is not trusted: when the
     /// feature had overlapped another one, their interference leaves a blob there too.
     pub fn record_move(&mut self, old: Vec2, new: Vec2, seen: Seen) {
-        let untried = !self.tried_exactly(old);
+        let untried = !self.tried_within(old, SAME_STEP);
         self.record(new, seen.appeared);
         if let (true, Some(s)) = (untried, seen.vanished) {
             self.record(old, Some(s));
