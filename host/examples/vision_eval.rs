@@ -2,17 +2,16 @@
 //! simulation and prints a table per task: success, terminal error, evaluations used.
 //! Run with `cargo run --release -p optalign --example vision_eval [-- <task>]`.
 
-use optalign::policy::{PolicyOptions, TaskBrief, build_policy};
-use optalign::rig::{MotorPath, SimRig};
-use optalign::run::{RunOptions, run_episode};
+use std::sync::Arc;
+
+use optalign::bench::{MatrixOptions, RunSpec, run_one};
 use optalign::scenario::ScenarioFile;
 use optalign::task::TaskKind;
 
 #[tokio::main(flavor = "current_thread")]
 async fn main() -> anyhow::Result<()> {
     let only = std::env::args().nth(1);
-    let scenario = ScenarioFile::default();
-    let limits = scenario.tasks.clone();
+    let scenario = Arc::new(ScenarioFile::default());
     for task in TaskKind::ALL {
         if only.as_deref().is_some_and(|name| name != task.name()) {
             continue;
@@ -20,23 +19,15 @@ async fn main() -> anyhow::Result<()> {
         println!("{task}\nseed  success  done  error  evaluations  milestones");
         let (mut errors, mut evaluations, mut successes) = (Vec::new(), Vec::new(), 0);
         for seed in 0..10 {
-            let mut rig = SimRig::new(task, &scenario, seed, MotorPath::InProcess).await?;
-            let brief = TaskBrief::new(task, &limits);
-            let mut built = build_policy(
-                "vision",
-                &brief,
-                &PolicyOptions {
-                    seed,
-                    ..Default::default()
-                },
-            )?;
-            let options = RunOptions {
-                out_dir: None,
+            let spec = RunSpec {
+                task,
+                policy: "vision".into(),
                 seed,
-                ..Default::default()
+                scenario: scenario.clone(),
+                setting: None,
+                out_dir: None,
             };
-            let summary =
-                run_episode(&mut rig, built.policy.as_mut(), None, &limits, &options).await?;
+            let summary = run_one(&spec, &MatrixOptions::default()).await?.summary;
             let error = summary.terminal_error.unwrap_or(f64::NAN);
             println!(
                 "{seed:>4}  {:>7}  {:>4}  {error:>7.1}  {:>11}  {:?}",

@@ -3,9 +3,9 @@
 //! short end-to-end run per task, judged by the hidden truth.
 
 use optalign::imaging::{changes, find_beams};
-use optalign::policy::{PolicyOptions, TaskBrief, build_policy};
-use optalign::rig::{MotorPath, SimRig};
-use optalign::run::{RunOptions, run_episode};
+use std::sync::Arc;
+
+use optalign::bench::{MatrixOptions, RunSpec, run_one};
 use optalign::scenario::ScenarioFile;
 use optalign::task::TaskKind;
 use optalign_optics::{CameraPose, Cavity, Michelson, Relay, Station};
@@ -89,26 +89,24 @@ async fn run(task: TaskKind, seed: u64) -> optalign::run::RunSummary {
     run_into(task, seed, None).await
 }
 
+/// One run of the vision agent on the default scenario, through the bench's own runner.
 async fn run_into(
     task: TaskKind,
     seed: u64,
     out_dir: Option<std::path::PathBuf>,
 ) -> optalign::run::RunSummary {
-    let scenario = ScenarioFile::default();
-    let limits = scenario.tasks.clone();
-    let mut rig = SimRig::new(task, &scenario, seed, MotorPath::InProcess)
-        .await
-        .unwrap();
-    let brief = TaskBrief::new(task, &limits);
-    let mut built = build_policy("vision", &brief, &PolicyOptions::default()).unwrap();
-    let options = RunOptions {
-        out_dir,
+    let spec = RunSpec {
+        task,
+        policy: "vision".into(),
         seed,
-        ..Default::default()
+        scenario: Arc::new(ScenarioFile::default()),
+        setting: None,
+        out_dir,
     };
-    run_episode(&mut rig, built.policy.as_mut(), None, &limits, &options)
+    run_one(&spec, &MatrixOptions::default())
         .await
         .unwrap()
+        .summary
 }
 
 #[tokio::test]
