@@ -9,14 +9,15 @@
 use std::path::{Path, PathBuf};
 use std::process::Command as Process;
 
+use optalign_firmware::config::default_config;
 use optalign_firmware::{
     BoardInfo, Controller, LinkKind, RamStorage, RngSource, Session, StepDirection, StepDriver,
     half_step_coils,
 };
 use optalign_protocol::{
-    Approach, AxisConfig, AxisStatus, AxisValue, BacklashMode, Capabilities, Command, DriverKind,
-    FrameDecoder, MAX_FRAME, MoveOutcome, Notification, PROTOCOL_VERSION, PeerMessage, Reply,
-    Request, RequestId, SoftLimits, encode_frame,
+    AxisConfig, AxisStatus, AxisValue, BacklashMode, Capabilities, Command, FrameDecoder,
+    MAX_FRAME, MoveOutcome, Notification, PROTOCOL_VERSION, PeerMessage, Reply, Request, RequestId,
+    encode_frame,
 };
 
 const AXES: u8 = 4;
@@ -44,21 +45,15 @@ fn board() -> BoardInfo {
     }
 }
 
+/// An axis set up like a fresh one on the emulator image, with the given motion and
+/// backlash settings.
 fn config(max_speed: u32, acceleration: u32, backlash: u16, mode: BacklashMode) -> AxisConfig {
     AxisConfig {
         max_speed,
         acceleration,
         backlash,
         backlash_mode: mode,
-        approach: Approach::Positive,
-        overshoot_margin: 10,
-        limits: SoftLimits {
-            min: -100_000,
-            max: 100_000,
-        },
-        invert: false,
-        idle_power_down_ms: 500,
-        driver: DriverKind::UnipolarHalfStep,
+        ..default_config(Capabilities(board().capabilities))
     }
 }
 
