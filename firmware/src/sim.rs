@@ -3,8 +3,10 @@
 //!
 //! [`MountModel`] is the truth the firmware's backlash model tries to track: a motor
 //! geared to a load through a dead band of `backlash` steps, with optional lost steps
-//! (random, or in a binding region of load positions). Everything is deterministic given
-//! the seed.
+//! (random, or in a binding region of load positions), and an optional imperfect screw
+//! between the load and the mirror (a periodic pitch error, and elastic hysteresis that
+//! lags the mirror behind reversals beyond the dead band). Everything is deterministic
+//! given the seed.
 
 use heapless::Vec;
 use optalign_protocol::MAX_AXES;
@@ -77,6 +79,48 @@ pub struct MountModel {
     stall: Option<Stall>,
     rng: SimRng,
     lost: u64,
+    screw: Screw,
+}
+
+/// Imperfections of the screw between the load and the mirror.
+#[derive(Clone, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+struct Screw {
+    /// Amplitude of the periodic pitch error, steps.
+    pitch_error: u32,
+    /// Its period, steps.
+    pitch_period: u32,
+    /// Half the width of the elastic hysteresis loop, steps.
+    hysteresis: u32,
+    /// How far the mirror lags the screw now, thousandths of a step (+ after forward travel).
+    wind_milli: i32,
+}
+
+impl Screw {
+    /// After one load step in `direction`, the lag relaxes towards the full half-width on
+    /// that side: right after a reversal the mirror does not follow at all, then catches up
+    /// over a few times the half-width.
+    fn load_step(&mut self, forward: bool) {
+        if self.hysteresis == 0 {
+            return;
+        }
+        let full = 1000 * i64::from(self.hysteresis) * if forward { 1 } else { -1 };
+        let gap = full - i64::from(self.wind_milli);
+        self.wind_milli += (gap / (2 * i64::from(self.hysteresis))) as i32;
+    }
+
+    /// The mirror position for screw position `shaft`, steps.
+    fn mirror(&self, shaft: i32) -> i32 {
+        let periodic = if self.pitch_error == 0 || self.pitch_period == 0 {
+            0.0
+        } else {
+            let phase = core::f64::consts::TAU
+                * f64::from(shaft.rem_euclid(self.pitch_period as i32))
+                / f64::from(self.pitch_period);
+            f64::from(self.pitch_error) * libm::sin(phase)
+        };
+        let lag = f64::from(self.wind_milli) / 1000.0;
+        shaft.saturating_add(libm::round(periodic - lag) as i32)
+    }
 }
 
 impl MountModel {
@@ -92,7 +136,20 @@ impl MountModel {
             stall: None,
             rng: SimRng::new(0x6F70_7461_6C69_676E),
             lost: 0,
+            screw: Screw::default(),
         }
+    }
+
+    /// An imperfect screw: a periodic pitch error of `pitch_error` steps amplitude every
+    /// `pitch_period` steps, and elastic hysteresis of `hysteresis` steps either side.
+    pub fn with_screw(mut self, pitch_error: u32, pitch_period: u32, hysteresis: u32) -> Self {
+        self.screw = Screw {
+            pitch_error,
+            pitch_period,
+            hysteresis,
+            wind_milli: 1000 * hysteresis.min(i32::MAX as u32 / 1000) as i32,
+        };
+        self
     }
 
     /// Starts with the motor `play` steps above the negative contact (clamped to the band).
@@ -146,6 +203,7 @@ impl MountModel {
                 return false;
             }
             self.shaft = next;
+            self.screw.load_step(forward);
         } else if forward {
             self.play += 1;
         } else {
@@ -158,6 +216,12 @@ impl MountModel {
     /// The true load position, in steps.
     pub fn shaft_position(&self) -> i32 {
         self.shaft
+    }
+
+    /// Where the mirror really is, in steps: the load position through the screw's pitch
+    /// error and hysteresis (the load position itself on a perfect screw).
+    pub fn mirror_position(&self) -> i32 {
+        self.screw.mirror(self.shaft)
     }
 
     /// The true rotor position, in steps.
@@ -273,6 +337,54 @@ mod tests {
         let mut mount = MountModel::new(3).with_play(1);
         mount.apply_step(Forward);
         assert_eq!((mount.shaft_position(), mount.play()), (0, 2));
+    }
+
+    #[test]
+    fn a_perfect_screw_puts_the_mirror_on_the_load() {
+        let mut mount = MountModel::new(0);
+        for _ in 0..100 {
+            mount.apply_step(Forward);
+        }
+        assert_eq!(mount.mirror_position(), 100);
+    }
+
+    #[test]
+    fn pitch_error_is_periodic_in_the_load_position() {
+        let mut mount = MountModel::new(0).with_screw(20, 400, 0);
+        let mut seen = [0; 4];
+        for step in 1..=400 {
+            mount.apply_step(Forward);
+            if step % 100 == 0 {
+                seen[step / 100 - 1] = mount.mirror_position() - mount.shaft_position();
+            }
+        }
+        // sin at a quarter, half, three quarters and a whole period.
+        assert_eq!(seen, [20, 0, -20, 0]);
+    }
+
+    #[test]
+    fn hysteresis_lags_the_mirror_after_a_reversal() {
+        let mut mount = MountModel::new(0).with_screw(0, 0, 50);
+        for _ in 0..1000 {
+            mount.apply_step(Forward);
+        }
+        // Settled lag: 50 steps behind on the forward side.
+        assert_eq!(mount.shaft_position() - mount.mirror_position(), 50);
+        let before = mount.mirror_position();
+        for _ in 0..20 {
+            mount.apply_step(Backward);
+        }
+        // The mirror hardly follows the first steps back ...
+        assert!(
+            before - mount.mirror_position() < 8,
+            "{}",
+            before - mount.mirror_position()
+        );
+        for _ in 0..980 {
+            mount.apply_step(Backward);
+        }
+        // ... and lags 50 steps on the other side once settled: a loop 100 steps wide.
+        assert_eq!(mount.mirror_position() - mount.shaft_position(), 50);
     }
 
     #[test]

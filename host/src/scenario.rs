@@ -13,7 +13,7 @@ use optalign_optics::{
 use optalign_protocol::BacklashMode;
 use serde::{Deserialize, Serialize};
 
-use crate::task::TaskLimits;
+use crate::task::{BenchGeometry, TaskKind, TaskLimits};
 
 /// The simulated mounts and how the firmware is configured for them (`[mount]`).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -31,6 +31,15 @@ pub struct MountParams {
     pub max_speed: u32,
     /// Acceleration, steps/s². Default 2000.
     pub acceleration: u32,
+    /// Amplitude of each screw's periodic pitch error, steps: the mirror moves that much
+    /// more or less than the screw over a period. Default 0.
+    pub pitch_error_steps: u32,
+    /// Period of the pitch error, steps. Default 4096 (one revolution).
+    pub pitch_period_steps: u32,
+    /// Elastic hysteresis beyond the dead band, steps either side: after a reversal the
+    /// mirror lags the screw by up to twice this, taken up gradually over a few times it
+    /// (not compensated by the firmware, which knows only the dead band). Default 0.
+    pub hysteresis_steps: u32,
 }
 
 impl Default for MountParams {
@@ -42,6 +51,9 @@ impl Default for MountParams {
             lost_step_probability: 0.0,
             max_speed: 800,
             acceleration: 2000,
+            pitch_error_steps: 0,
+            pitch_period_steps: 4096,
+            hysteresis_steps: 0,
         }
     }
 }
@@ -133,10 +145,16 @@ impl ScenarioFile {
             mount.acceleration > 0,
             "mount.acceleration: must be > 0 steps/s²"
         );
+        for (name, value) in [
+            ("mount.backlash_steps", mount.backlash_steps),
+            ("mount.pitch_error_steps", mount.pitch_error_steps),
+            ("mount.hysteresis_steps", mount.hysteresis_steps),
+        ] {
+            anyhow::ensure!(value <= 2000, "{name}: must be <= 2000, got {value}");
+        }
         anyhow::ensure!(
-            mount.backlash_steps <= 2000,
-            "mount.backlash_steps: must be <= 2000, got {}",
-            mount.backlash_steps
+            mount.pitch_period_steps > 0,
+            "mount.pitch_period_steps: must be > 0 steps"
         );
         let timing = &self.timing;
         for (name, value) in [
@@ -150,6 +168,33 @@ impl ScenarioFile {
             );
         }
         Ok(())
+    }
+
+    /// The geometry of `task`'s simulated bench, for the policies' brief: the image size,
+    /// and for the relay its sensor, the mount's nominal tilt per step, the mirrors and the
+    /// stations.
+    pub fn geometry(&self, task: TaskKind) -> BenchGeometry {
+        match task {
+            TaskKind::Michelson => BenchGeometry {
+                image_px: Some([self.michelson.width_px, self.michelson.height_px]),
+                ..BenchGeometry::default()
+            },
+            TaskKind::Cavity => BenchGeometry {
+                image_px: Some([self.cavity.width_px, self.cavity.height_px]),
+                ..BenchGeometry::default()
+            },
+            TaskKind::Relay => {
+                let r = &self.relay;
+                BenchGeometry {
+                    sensor_mm: Some([r.camera.sensor_width_mm, r.camera.sensor_height_mm]),
+                    image_px: Some([r.camera.width_px, r.camera.height_px]),
+                    tilt_rad_per_step: Some(r.tilt_rad_per_step),
+                    relay_sides_mm: Some([r.long_side_mm, r.short_side_mm]),
+                    mirror_diameter_mm: Some(r.mirror_diameter_mm),
+                    station_distances_mm: Some(r.station_distances_mm),
+                }
+            }
+        }
     }
 
     /// The scene tables as the optics crate takes them.

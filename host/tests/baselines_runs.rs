@@ -17,7 +17,7 @@ async fn run(
     scenario: &ScenarioFile,
 ) -> (RunSummary, Vec<StepRecord>) {
     let dir = tempfile::tempdir().unwrap();
-    let brief = TaskBrief::new(task, &scenario.tasks);
+    let brief = TaskBrief::new(task, &scenario.tasks, scenario.geometry(task));
     let mut built = build_policy(
         policy,
         &brief,

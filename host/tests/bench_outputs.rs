@@ -1,6 +1,7 @@
 //! The bench on tiny matrices: it writes results.csv, summary.md, PNG and SVG charts and
-//! per-run transcripts; a sweep writes one row per knob value and its chart; the demo's
-//! HTML report shows each frame as a thumbnail with its action.
+//! per-run transcripts; a sweep writes one row per knob value and its chart, several
+//! sweeps one stability map per task; the demo's HTML report shows each frame as a
+//! thumbnail with its action.
 
 use std::path::Path;
 use std::sync::Arc;
@@ -20,7 +21,7 @@ fn tiny_scenario() -> ScenarioFile {
     scenario
 }
 
-fn plan(out: &Path, tasks: Vec<TaskKind>, seeds: Vec<u64>, sweep: Option<SweepSpec>) -> BenchPlan {
+fn plan(out: &Path, tasks: Vec<TaskKind>, seeds: Vec<u64>, sweeps: Vec<SweepSpec>) -> BenchPlan {
     BenchPlan {
         tasks,
         policies: vec!["random".into()],
@@ -34,7 +35,7 @@ fn plan(out: &Path, tasks: Vec<TaskKind>, seeds: Vec<u64>, sweep: Option<SweepSp
             save_frames: false,
             ..MatrixOptions::default()
         },
-        sweep,
+        sweeps,
     }
 }
 
@@ -54,7 +55,7 @@ fn a_bench_writes_results_summary_charts_and_transcripts() {
         out.path(),
         vec![TaskKind::Cavity, TaskKind::Relay],
         vec![0, 1],
-        None,
+        Vec::new(),
     );
     let output = run_bench(&plan, &ProgressBar::hidden()).unwrap();
     assert_eq!(output.records.len(), 4);
@@ -101,7 +102,7 @@ fn a_sweep_writes_one_group_per_value_and_its_chart() {
         out.path(),
         vec![TaskKind::Michelson, TaskKind::Cavity],
         vec![0],
-        Some(sweep),
+        vec![sweep],
     );
     let output = run_bench(&plan, &ProgressBar::hidden()).unwrap();
     // The knob only changes the cavity, so only the cavity runs.
@@ -127,11 +128,49 @@ fn a_sweep_writes_one_group_per_value_and_its_chart() {
 }
 
 #[test]
+fn several_sweeps_draw_a_stability_map_per_task() {
+    let out = tempfile::tempdir().unwrap();
+    let sweeps = vec![
+        SweepSpec::parse("flicker=0,0.1").unwrap(),
+        SweepSpec::parse("beam_profile=tem01").unwrap(),
+        // Changes neither task: skipped among several.
+        SweepSpec::parse("placement_error=2").unwrap(),
+    ];
+    let plan = plan(
+        out.path(),
+        vec![TaskKind::Michelson, TaskKind::Cavity],
+        vec![0],
+        sweeps,
+    );
+    let output = run_bench(&plan, &ProgressBar::hidden()).unwrap();
+    assert_eq!(output.records.len(), 6);
+    let csv = std::fs::read_to_string(out.path().join("results.csv")).unwrap();
+    assert!(
+        csv.contains("\nbeam_profile,tem01,cavity,random,0,"),
+        "{csv}"
+    );
+    assert!(csv.contains("\nflicker,0.1,michelson,random,0,"), "{csv}");
+    let charts = out.path().join("charts");
+    for stem in [
+        "sweep_flicker",
+        "sweep_beam_profile",
+        "stability_michelson",
+        "stability_cavity",
+    ] {
+        assert_chart(&charts, stem);
+    }
+    assert!(!charts.join("sweep_placement_error.png").exists());
+    let summary = std::fs::read_to_string(out.path().join("summary.md")).unwrap();
+    assert!(summary.contains("against beam_profile"), "{summary}");
+    assert!(summary.contains("| random | "), "{summary}");
+}
+
+#[test]
 fn sweeps_that_change_nothing_or_break_the_scenario_fail_naming_the_knob() {
     let out = tempfile::tempdir().unwrap();
     let sweep = SweepSpec::parse("placement_error=1,2").unwrap();
     let error = run_bench(
-        &plan(out.path(), vec![TaskKind::Cavity], vec![0], Some(sweep)),
+        &plan(out.path(), vec![TaskKind::Cavity], vec![0], vec![sweep]),
         &ProgressBar::hidden(),
     )
     .unwrap_err()
@@ -142,7 +181,7 @@ fn sweeps_that_change_nothing_or_break_the_scenario_fail_naming_the_knob() {
     );
     let sweep = SweepSpec::parse("noise=1,400").unwrap();
     let error = run_bench(
-        &plan(out.path(), vec![TaskKind::Cavity], vec![0], Some(sweep)),
+        &plan(out.path(), vec![TaskKind::Cavity], vec![0], vec![sweep]),
         &ProgressBar::hidden(),
     )
     .unwrap_err()

@@ -86,8 +86,9 @@ async fn compensate(url: &str, axes: u8, backlash: u16) {
 async fn run_vision(rig: RigFile) -> optalign::run::RunSummary {
     let limits = rig.limits.clone();
     let task = rig.task;
+    let rig_geometry = rig.geometry.clone();
     let mut bench = LabRig::connect(rig).await.unwrap();
-    let brief = TaskBrief::new(task, &limits);
+    let brief = TaskBrief::new(task, &limits, rig_geometry);
     let mut built = build_policy("vision", &brief, &PolicyOptions::default()).unwrap();
     let options = RunOptions {
         out_dir: None,
@@ -227,6 +228,11 @@ m4v = {{ controller = "b", axis = 2 }}
 m4h = {{ controller = "b", axis = 3 }}
 {camera}[mover]
 kind = "sim"
+[geometry]
+sensor_mm = [6.4, 4.8]
+image_px = [640, 480]
+tilt_rad_per_step = 6.5918e-6
+station_distances_mm = [25.0, 254.4, 25.0, 178.2, 25.0, 254.4, 25.0, 300.0]
 "#,
             camera = instant_sim_camera(seed),
         ),

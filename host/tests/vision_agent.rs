@@ -2,7 +2,7 @@
 //! speckle against a spot, stationary artefacts cancelling in frame differences) and one
 //! short end-to-end run per task, judged by the hidden truth.
 
-use optalign::imaging::{changes, find_beams};
+use optalign::imaging::{Picture, changes, find_beams};
 use std::sync::Arc;
 
 use optalign::bench::{MatrixOptions, RunSpec, run_one};
@@ -18,7 +18,7 @@ fn distance(a: [f64; 2], b: [f64; 2]) -> f64 {
 fn a_clean_michelson_beam_is_found_within_a_pixel() {
     let scene = Michelson::new(ScenarioFile::default().michelson, [0; 4]).unwrap();
     let shaft = [700, -400, 20_000, 0];
-    let beams = find_beams(&scene.render(&shaft, 3));
+    let beams = find_beams(&Picture::new(&scene.render(&shaft, 3)));
     assert_eq!(beams.len(), 1, "{beams:?}");
     let truth = scene.truth(&shaft).beam_centres_px[0];
     assert!(
@@ -35,7 +35,7 @@ fn a_michelson_beam_cut_by_the_border_is_flagged_and_its_centre_fitted() {
     for vertical in [3000, 3500, 4000] {
         let shaft = [-2000, vertical, 20_000, 0];
         let truth = scene.truth(&shaft).beam_centres_px[0];
-        let beams = find_beams(&scene.render(&shaft, 5));
+        let beams = find_beams(&Picture::new(&scene.render(&shaft, 5)));
         assert_eq!(beams.len(), 1, "{beams:?}");
         let fit = beams[0].fit.expect("a spot fit");
         assert!(beams[0].clipped, "{beams:?}");
@@ -50,14 +50,22 @@ fn a_michelson_beam_cut_by_the_border_is_flagged_and_its_centre_fitted() {
 #[test]
 fn a_relay_spot_is_localised_and_a_clipped_beam_is_speckle() {
     let scene = Relay::new(ScenarioFile::default().relay, [0; 8]).unwrap();
-    let spot = find_beams(&scene.render(&[0; 8], &CameraPose::nominal(Station::C8), 1));
+    let spot = find_beams(&Picture::new(&scene.render(
+        &[0; 8],
+        &CameraPose::nominal(Station::C8),
+        1,
+    )));
     assert!(spot[0].localised, "{spot:?}");
     assert!(distance(spot[0].centre, [320.0, 240.0]) < 1.0, "{spot:?}");
     // Tilted so that half the beam misses C2's sensor (3.2 mm at 254.4 mm from M1).
     let halfway = [1300, -1300].map(|steps| {
         let mut shaft = [0; 8];
         shaft[1] = steps;
-        find_beams(&scene.render(&shaft, &CameraPose::nominal(Station::C2), 1))
+        find_beams(&Picture::new(&scene.render(
+            &shaft,
+            &CameraPose::nominal(Station::C2),
+            1,
+        )))
     });
     assert!(
         halfway
@@ -71,7 +79,10 @@ fn a_relay_spot_is_localised_and_a_clipped_beam_is_speckle() {
 fn cavity_artefacts_cancel_and_the_secondary_shows_in_the_difference() {
     let scene = Cavity::new(ScenarioFile::default().cavity, [0; 2]).unwrap();
     let (a, b) = ([2000, 1500], [-1500, 1500]);
-    let moved = changes(&scene.render(&a, 1), &scene.render(&b, 2));
+    let moved = changes(
+        &Picture::new(&scene.render(&a, 1)),
+        &Picture::new(&scene.render(&b, 2)),
+    );
     assert_eq!(moved.appeared.len(), 1, "{moved:?}");
     assert_eq!(moved.vanished.len(), 1, "{moved:?}");
     let truth = |shaft: &[i32]| scene.truth(shaft).secondary_centre_px;

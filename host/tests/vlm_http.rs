@@ -79,7 +79,7 @@ async fn run(
     };
     tweak(&mut vlm);
     let scenario = ScenarioFile::default();
-    let brief = TaskBrief::new(task, &scenario.tasks);
+    let brief = TaskBrief::new(task, &scenario.tasks, scenario.geometry(task));
     let mut built = build_policy(
         "vlm",
         &brief,
@@ -420,6 +420,7 @@ async fn a_missing_key_fails_at_once_and_names_the_variable() {
         task: TaskKind::Michelson,
         limits: scenario.tasks.clone(),
         budget: 60,
+        geometry: scenario.geometry(TaskKind::Michelson),
     };
     let vlm = VlmOptions {
         api_key_env: NO_KEY.into(),

@@ -16,10 +16,13 @@ mod cavity;
 mod frame;
 mod math;
 mod michelson;
+mod profile;
 mod readout;
 mod relay;
 pub mod scenario;
 pub mod seeds;
+mod sensor;
+mod speckle;
 
 pub use cavity::{Cavity, CavityTruth};
 pub use frame::{Frame, FrameError};

@@ -1,13 +1,16 @@
-//! The Michelson interferometer scene: two returning Gaussian beams steered by two two-axis
-//! mirrors, coherently superposed with a fixed relative phase gradient (straight fringes where
-//! they overlap), cut at the image border, saturated, on a noisy background.
+//! The Michelson interferometer scene: two returning beams steered by two two-axis mirrors,
+//! coherently superposed with a relative phase gradient (straight fringes where they
+//! overlap), cut at the image border, saturated, on a noisy background, with whatever
+//! realism layers the scenario turns on (beam shapes, flicker, jitter, fringe drift, camera
+//! effects).
 
 use std::f64::consts::TAU;
 
 use crate::frame::Frame;
-use crate::math::spot_span;
-use crate::readout::{Readout, scene_key};
+use crate::profile::BeamShape;
+use crate::readout::{Readout, mix64, scene_key};
 use crate::scenario::{MichelsonParams, ScenarioError};
+use crate::sensor::{FrameDraw, Sensor};
 
 /// Hidden truth of one Michelson state, for scoring only.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -26,7 +29,12 @@ pub struct Michelson {
     params: MichelsonParams,
     offsets: [i32; 4],
     key: u64,
+    shapes: [BeamShape; 2],
+    sensor: Sensor,
 }
+
+/// Periods of the three incommensurate waves that make up the fringe drift, frames.
+const DRIFT_PERIODS: [f64; 3] = [7.3, 17.9, 41.1];
 
 impl Michelson {
     /// Number of motor axes: mirror 1 (horizontal, vertical), mirror 2 (horizontal, vertical).
@@ -36,10 +44,35 @@ impl Michelson {
     pub fn new(params: MichelsonParams, offsets: [i32; 4]) -> Result<Self, ScenarioError> {
         params.validate()?;
         let key = scene_key(params.noise.seed, &offsets);
+        let realism = &params.realism;
+        let orientation = realism.orientation();
+        let shape = |k: usize| {
+            let r = params.beam_radius_px[k];
+            BeamShape::new(
+                realism.profile(k),
+                &realism.texture,
+                [r, r],
+                orientation,
+                mix64(params.noise.seed ^ k as u64),
+            )
+            .map_err(|reason| ScenarioError::Invalid {
+                field: "michelson.realism.beam_profile".into(),
+                reason,
+            })
+        };
+        let shapes = [shape(0)?, shape(1)?];
+        let sensor = Sensor::new(
+            realism,
+            params.width_px as usize,
+            params.height_px as usize,
+            key,
+        );
         Ok(Self {
             params,
             offsets,
             key,
+            shapes,
+            sensor,
         })
     }
 
@@ -55,7 +88,7 @@ impl Michelson {
         ]
     }
 
-    /// Beam centres in px for the given shaft positions.
+    /// Beam centres in px for the given shaft positions (without jitter).
     fn centres(&self, shaft: &[i32]) -> [[f64; 2]; 2] {
         assert_eq!(
             shaft.len(),
@@ -64,15 +97,20 @@ impl Michelson {
             Self::AXES
         );
         let c = self.image_centre();
+        let o = self.params.realism.orientation();
         std::array::from_fn(|k| {
             let u = [
                 f64::from(shaft[2 * k]) + f64::from(self.offsets[2 * k]),
                 f64::from(shaft[2 * k + 1]) + f64::from(self.offsets[2 * k + 1]),
             ];
             let s = self.params.sensitivity(k);
+            let d = [
+                s[0][0] * u[0] + s[0][1] * u[1],
+                s[1][0] * u[0] + s[1][1] * u[1],
+            ];
             [
-                c[0] + s[0][0] * u[0] + s[0][1] * u[1],
-                c[1] + s[1][0] * u[0] + s[1][1] * u[1],
+                c[0] + o[0][0] * d[0] + o[0][1] * d[1],
+                c[1] + o[1][0] * d[0] + o[1][1] * d[1],
             ]
         })
     }
@@ -92,73 +130,89 @@ impl Michelson {
         }
     }
 
-    /// Renders the camera frame for the given shaft positions; `frame_index` selects the noise.
+    /// The relative phase at the image centre in frame `frame_index`: the configured phase
+    /// plus the drift, a sum of three slow incommensurate waves of RMS `fringe_drift_rad`.
+    fn phase(&self, frame_index: u64) -> f64 {
+        let p = &self.params;
+        if p.fringe_drift_rad == 0.0 {
+            return p.fringe_phase_rad;
+        }
+        let amplitude = p.fringe_drift_rad * (2.0f64 / 3.0).sqrt();
+        let t = frame_index as f64;
+        p.fringe_phase_rad
+            + DRIFT_PERIODS
+                .iter()
+                .enumerate()
+                .map(|(i, period)| {
+                    let start =
+                        TAU * (mix64(self.key ^ (i as u64 + 1)) >> 11) as f64 / (1u64 << 53) as f64;
+                    amplitude * (TAU * t / period + start).sin()
+                })
+                .sum::<f64>()
+    }
+
+    /// Renders the camera frame for the given shaft positions; `frame_index` selects the
+    /// noise and the per-frame draws of the realism layers.
     ///
-    /// The image is `|E1 + E2 exp(i phi)|^2` with Gaussian fields and a linear phase `phi`.
-    /// Both are separable, so per column and per row factors are computed once and each pixel
-    /// in the region the beams reach costs four multiply-adds.
+    /// The image is `|E1 + E2 exp(i phi)|^2` with the beams' fields and a linear phase
+    /// `phi`, whose cosine splits into per-column and per-row factors computed once.
     ///
     /// # Panics
     /// If `shaft` does not hold [`Self::AXES`] values.
     pub fn render(&self, shaft: &[i32], frame_index: u64) -> Frame {
         let p = &self.params;
         let (w, h) = (p.width_px as usize, p.height_px as usize);
-        let centres = self.centres(shaft);
+        let draw = FrameDraw::new(&p.realism, self.key, frame_index);
+        let truth = self.centres(shaft);
+        let placed = [0, 1].map(|k| {
+            let centre = [
+                truth[k][0] + draw.jitter[k][0],
+                truth[k][1] + draw.jitter[k][1],
+            ];
+            self.shapes[k].place(centre, [w, h])
+        });
+        let peak = p.beam_peak_level.map(|level| level * draw.gain);
+        let cross = (2.0 * (peak[0] * peak[1]).sqrt()) as f32;
+        let peak = peak.map(|level| level as f32);
         let rc = self.image_centre();
-        let radius = p.beam_radius_px;
-        let peak = p.beam_peak_level;
+        let o = p.realism.orientation();
         let wavenumber = TAU / p.fringe_period_px;
         let angle = p.fringe_angle_deg.to_radians();
-        let (kx, ky) = (wavenumber * angle.cos(), wavenumber * angle.sin());
+        let k0 = [wavenumber * angle.cos(), wavenumber * angle.sin()];
+        let (kx, ky) = (
+            o[0][0] * k0[0] + o[0][1] * k0[1],
+            o[1][0] * k0[0] + o[1][1] * k0[1],
+        );
+        let phase = self.phase(frame_index);
 
-        let spans_x = [0, 1].map(|k| spot_span(centres[k][0], radius[k], w));
-        let spans_y = [0, 1].map(|k| spot_span(centres[k][1], radius[k], h));
-        let cols = union(&spans_x[0], &spans_x[1]);
-
-        // Column factors: field amplitude exp(-dx^2 / r^2) of each beam, zero outside its span.
-        let field = |k: usize, i: usize, spans: &[std::ops::Range<usize>; 2], axis: usize| {
-            if spans[k].contains(&i) {
-                let d = (i as f64 + 0.5 - centres[k][axis]) / radius[k];
-                (-d * d).exp()
-            } else {
-                0.0
-            }
-        };
-        let cross = 2.0 * (peak[0] * peak[1]).sqrt();
-        let n = cols.len();
-        let (mut pc, mut qc, mut cc, mut sc) =
-            (vec![0f32; n], vec![0f32; n], vec![0f32; n], vec![0f32; n]);
-        for (j, i) in cols.clone().enumerate() {
-            let f1 = field(0, i, &spans_x, 0);
-            let f2 = field(1, i, &spans_x, 0);
-            let alpha = kx * (i as f64 + 0.5 - rc[0]);
-            pc[j] = (peak[0] * f1 * f1) as f32;
-            qc[j] = (peak[1] * f2 * f2) as f32;
-            cc[j] = (cross * f1 * f2 * alpha.cos()) as f32;
-            sc[j] = (cross * f1 * f2 * alpha.sin()) as f32;
-        }
-
+        let cols = union(&placed[0].cols(), &placed[1].cols());
+        let (cos_x, sin_x): (Vec<f32>, Vec<f32>) = cols
+            .clone()
+            .map(|i| {
+                let alpha = kx * (i as f64 + 0.5 - rc[0]);
+                (alpha.cos() as f32, alpha.sin() as f32)
+            })
+            .unzip();
+        let mut fields = [vec![0f32; w], vec![0f32; w]];
         let readout = Readout::new(&p.noise, self.key, frame_index);
-        let mut pixels = vec![0u8; w * h];
-        let mut signal = vec![0f32; w];
-        for (y, out) in pixels.chunks_exact_mut(w).enumerate() {
-            let g1 = field(0, y, &spans_y, 1);
-            let g2 = field(1, y, &spans_y, 1);
-            if n == 0 || (g1 == 0.0 && g2 == 0.0) {
-                readout.finish_row(y as u32, None, out);
-                continue;
+        let pixels = self.sensor.expose(&readout, |y, row| {
+            let [e1, e2] = &mut fields;
+            e1[cols.clone()].fill(0.0);
+            e2[cols.clone()].fill(0.0);
+            let lit1 = placed[0].amplitude_row(y, 1.0, e1);
+            let lit2 = placed[1].amplitude_row(y, 1.0, e2);
+            if !lit1 && !lit2 {
+                return false;
             }
-            let beta = ky * (y as f64 + 0.5 - rc[1]) + p.fringe_phase_rad;
-            let a = (g1 * g1) as f32;
-            let b = (g2 * g2) as f32;
-            let c = (g1 * g2 * beta.cos()) as f32;
-            let d = (-g1 * g2 * beta.sin()) as f32;
-            let row = &mut signal[cols.clone()];
-            for (j, v) in row.iter_mut().enumerate() {
-                *v = a * pc[j] + b * qc[j] + c * cc[j] + d * sc[j];
+            let beta = ky * (y as f64 + 0.5 - rc[1]) + phase;
+            let (cb, sb) = (beta.cos() as f32, beta.sin() as f32);
+            for (j, x) in cols.clone().enumerate() {
+                let (a, b) = (e1[x], e2[x]);
+                let fringe = cb * cos_x[j] - sb * sin_x[j];
+                row[x] = peak[0] * a * a + peak[1] * b * b + cross * a * b * fringe;
             }
-            readout.finish_row(y as u32, Some(&signal), out);
-        }
+            true
+        });
         Frame::new(p.width_px, p.height_px, pixels).expect("buffer sized to the frame")
     }
 }

@@ -106,6 +106,13 @@ impl Readout {
     }
 }
 
+impl Readout {
+    /// The pixel value of `signal` gray levels above the dark level, without noise.
+    pub(crate) fn level(&self, signal: f64) -> u8 {
+        quantise(self.background + signal as f32, self.saturation)
+    }
+}
+
 /// Rounds a gray level to the nearest pixel value, clipping at 0 and at `saturation` (<= 255).
 fn quantise(value: f32, saturation: f32) -> u8 {
     // Branch-free rounding that vectorises: the clipped value plus 2^23 holds its nearest

@@ -149,7 +149,7 @@ pub fn run_matrix(
 pub async fn run_one(spec: &RunSpec, options: &MatrixOptions) -> anyhow::Result<RunRecord> {
     let started = Instant::now();
     let scenario = spec.scenario.as_ref();
-    let brief = TaskBrief::new(spec.task, &scenario.tasks);
+    let brief = TaskBrief::new(spec.task, &scenario.tasks, scenario.geometry(spec.task));
     let policy_options = PolicyOptions {
         seed: spec.seed,
         vlm: options.vlm.clone(),
@@ -189,7 +189,8 @@ pub struct BenchPlan {
     pub scenario_label: String,
     pub out: PathBuf,
     pub options: MatrixOptions,
-    pub sweep: Option<SweepSpec>,
+    /// Knobs to sweep, one after the other (none: the plain matrix).
+    pub sweeps: Vec<SweepSpec>,
 }
 
 /// What a bench produced.
@@ -209,8 +210,8 @@ pub struct BenchOutput {
 pub fn run_bench(plan: &BenchPlan, progress: &ProgressBar) -> anyhow::Result<BenchOutput> {
     let started = Instant::now();
     let runs_root = plan.out.join("runs");
-    let (specs, tasks, settings) = match &plan.sweep {
-        None => (
+    let (specs, tasks, settings) = if plan.sweeps.is_empty() {
+        (
             matrix(
                 &plan.tasks,
                 &plan.policies,
@@ -221,43 +222,9 @@ pub fn run_bench(plan: &BenchPlan, progress: &ProgressBar) -> anyhow::Result<Ben
             ),
             plan.tasks.clone(),
             Vec::new(),
-        ),
-        Some(sweep) => {
-            let tasks: Vec<TaskKind> = plan
-                .tasks
-                .iter()
-                .copied()
-                .filter(|t| sweep.knob.applies_to(*t))
-                .collect();
-            anyhow::ensure!(
-                !tasks.is_empty(),
-                "sweep knob {} changes none of the tasks {}",
-                sweep.knob,
-                plan.tasks
-                    .iter()
-                    .map(|t| t.name())
-                    .collect::<Vec<_>>()
-                    .join(", ")
-            );
-            let mut specs = Vec::new();
-            let mut settings = Vec::new();
-            for (setting, scenario) in sweep
-                .scenarios(&plan.scenario)
-                .map_err(anyhow::Error::msg)?
-            {
-                let root = runs_root.join(format!("{}={}", setting.knob, setting.value));
-                specs.extend(matrix(
-                    &tasks,
-                    &plan.policies,
-                    &plan.seeds,
-                    &Arc::new(scenario),
-                    Some(setting),
-                    Some(&root),
-                ));
-                settings.push(setting);
-            }
-            (specs, tasks, settings)
-        }
+        )
+    } else {
+        sweep_matrix(plan, &runs_root)?
     };
     std::fs::create_dir_all(&plan.out)
         .with_context(|| format!("cannot create {}", plan.out.display()))?;
@@ -280,7 +247,7 @@ pub fn run_bench(plan: &BenchPlan, progress: &ProgressBar) -> anyhow::Result<Ben
     } else {
         (
             results::sweep_tables(&records, &tasks, &plan.policies, &settings),
-            charts::write_sweep_chart(&charts_dir, &records, &tasks, &plan.policies, &settings)?,
+            charts::write_sweep_charts(&charts_dir, &records, &tasks, &plan.policies, &settings)?,
         )
     };
     let csv = plan.out.join("results.csv");
@@ -303,6 +270,63 @@ pub fn run_bench(plan: &BenchPlan, progress: &ProgressBar) -> anyhow::Result<Ben
         tables,
         wall_time_s,
     })
+}
+
+/// The runs of every sweep in the plan, with the tasks any knob applies to and every
+/// knob value. A knob that changes none of the plan's tasks is an error when it is the only
+/// one, and is skipped (with a note) among several.
+fn sweep_matrix(
+    plan: &BenchPlan,
+    runs_root: &std::path::Path,
+) -> anyhow::Result<(Vec<RunSpec>, Vec<TaskKind>, Vec<Setting>)> {
+    let mut specs = Vec::new();
+    let mut settings = Vec::new();
+    let mut swept_tasks = Vec::new();
+    for sweep in &plan.sweeps {
+        let tasks: Vec<TaskKind> = plan
+            .tasks
+            .iter()
+            .copied()
+            .filter(|t| sweep.knob.applies_to(*t))
+            .collect();
+        if tasks.is_empty() {
+            let names = plan.tasks.iter().map(|t| t.name()).collect::<Vec<_>>();
+            anyhow::ensure!(
+                plan.sweeps.len() > 1,
+                "sweep knob {} changes none of the tasks {}",
+                sweep.knob,
+                names.join(", ")
+            );
+            eprintln!(
+                "note: sweep knob {} changes none of {}; skipped",
+                sweep.knob,
+                names.join(", ")
+            );
+            continue;
+        }
+        for (setting, scenario) in sweep
+            .scenarios(&plan.scenario)
+            .map_err(anyhow::Error::msg)?
+        {
+            let root = runs_root.join(setting.to_string());
+            specs.extend(matrix(
+                &tasks,
+                &plan.policies,
+                &plan.seeds,
+                &Arc::new(scenario),
+                Some(setting),
+                Some(&root),
+            ));
+            settings.push(setting);
+        }
+        for task in tasks {
+            if !swept_tasks.contains(&task) {
+                swept_tasks.push(task);
+            }
+        }
+    }
+    swept_tasks.sort_by_key(|t| plan.tasks.iter().position(|p| p == t));
+    Ok((specs, swept_tasks, settings))
 }
 
 /// Parses a seed list: `0..10` (half-open), `3..=5`, `0,4,7`, or one number.

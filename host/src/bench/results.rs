@@ -167,7 +167,7 @@ pub fn write_csv(path: &Path, records: &[RunRecord]) -> anyhow::Result<()> {
             record.setting.map(|x| x.knob.name()).unwrap_or_default(),
             record
                 .setting
-                .map(|x| x.value.to_string())
+                .map(|x| csv_field(&x.knob.format_value(x.value)))
                 .unwrap_or_default(),
             s.task,
             csv_field(&s.policy),
@@ -316,8 +316,8 @@ fn milestone_table(records: &[RunRecord], policies: &[String]) -> String {
     md
 }
 
-/// The tables of a sweep: per task, success rate and mean terminal error per policy and
-/// knob value.
+/// The tables of a sweep: per knob and task, success rate and mean terminal error per
+/// policy and knob value.
 pub fn sweep_tables(
     records: &[RunRecord],
     tasks: &[TaskKind],
@@ -325,37 +325,52 @@ pub fn sweep_tables(
     settings: &[Setting],
 ) -> String {
     let mut md = String::new();
-    let Some(knob) = settings.first().map(|s| s.knob) else {
-        return md;
-    };
-    for &task in tasks {
-        let _ = writeln!(
-            md,
-            "## {task}: success rate and terminal error (mean) against {} ({})\n",
-            knob.name(),
-            knob.label()
-        );
-        let header: Vec<String> = settings.iter().map(|s| format!("{}", s.value)).collect();
-        let _ = writeln!(md, "| policy | {} |", header.join(" | "));
-        let _ = writeln!(md, "|---|{}", "---|".repeat(settings.len()));
-        for policy in policies {
-            let cells: Vec<String> = settings
-                .iter()
-                .map(|&setting| {
-                    let stats = PolicyStats::of(&select(records, task, policy, Some(setting)));
-                    format!(
-                        "{}/{}, {}",
-                        stats.successes,
-                        stats.runs,
-                        number(stats.terminal_mean)
-                    )
-                })
-                .collect();
-            let _ = writeln!(md, "| {policy} | {} |", cells.join(" | "));
+    for knob in knobs_of(settings) {
+        let values: Vec<Setting> = settings
+            .iter()
+            .copied()
+            .filter(|s| s.knob == knob)
+            .collect();
+        for &task in tasks.iter().filter(|t| knob.applies_to(**t)) {
+            let _ = writeln!(
+                md,
+                "## {task}: success rate and terminal error (mean) against {} ({})\n",
+                knob.name(),
+                knob.label()
+            );
+            let header: Vec<String> = values.iter().map(|s| knob.format_value(s.value)).collect();
+            let _ = writeln!(md, "| policy | {} |", header.join(" | "));
+            let _ = writeln!(md, "|---|{}", "---|".repeat(values.len()));
+            for policy in policies {
+                let cells: Vec<String> = values
+                    .iter()
+                    .map(|&setting| {
+                        let stats = PolicyStats::of(&select(records, task, policy, Some(setting)));
+                        format!(
+                            "{}/{}, {}",
+                            stats.successes,
+                            stats.runs,
+                            number(stats.terminal_mean)
+                        )
+                    })
+                    .collect();
+                let _ = writeln!(md, "| {policy} | {} |", cells.join(" | "));
+            }
+            md.push('\n');
         }
-        md.push('\n');
     }
     md
+}
+
+/// The knobs of `settings`, each once, in order.
+pub fn knobs_of(settings: &[Setting]) -> Vec<super::Knob> {
+    let mut knobs = Vec::new();
+    for setting in settings {
+        if !knobs.contains(&setting.knob) {
+            knobs.push(setting.knob);
+        }
+    }
+    knobs
 }
 
 /// Writes `summary.md`: the header, then the task tables (or sweep tables).

@@ -1,6 +1,7 @@
 //! `optalign bench`: the task x policy x seed matrix on simulated rigs, in parallel, with
 //! `results.csv`, `summary.md`, charts and per-run transcripts; `--sweep KNOB=v1,v2,...`
-//! repeats it across the values of one difficulty knob.
+//! (repeatable, or `all`) repeats it across the values of difficulty knobs and draws the
+//! stability map.
 
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -39,10 +40,14 @@ pub struct BenchArgs {
     /// Runs in parallel [default: the number of cores].
     #[arg(long)]
     jobs: Option<usize>,
-    /// Vary one scenario knob: noise, backlash, offset_scale, artefact_brightness,
-    /// placement_error, sensitivity_scale or cross_coupling, e.g. noise=0,5,10,20.
-    #[arg(long, value_name = "KNOB=V1,V2,...", value_parser = SweepSpec::parse)]
-    sweep: Option<SweepSpec>,
+    /// Vary a scenario knob, e.g. noise=0,5,10,20 or beam_profile=gaussian,tem01; KNOB
+    /// alone runs its standard values, `all` every knob. Repeat for several knobs. Knobs:
+    /// noise, backlash, offset_scale, artefact_brightness, placement_error,
+    /// sensitivity_scale, cross_coupling, beam_profile, texture, flicker, jitter,
+    /// hot_pixels, stray_spots, ambient, gradient, smear, camera_rotation, camera_flip,
+    /// pitch_error, hysteresis, fringe_drift (docs/simulation.md).
+    #[arg(long, value_name = "KNOB=V1,V2,...", value_parser = SweepSpec::parse_many)]
+    sweep: Vec<Vec<SweepSpec>>,
     /// Save every frame of every run next to its transcript (slow, large).
     #[arg(long)]
     frames: bool,
@@ -132,8 +137,9 @@ pub async fn run(args: BenchArgs) -> anyhow::Result<()> {
         }
     }
     let policies = resolve_policies(&args.policies)?;
-    let runs_per_task =
-        (args.seeds.0.len() * args.sweep.as_ref().map_or(1, |s| s.values.len())) as u64;
+    let sweeps: Vec<SweepSpec> = args.sweep.into_iter().flatten().collect();
+    let values: usize = sweeps.iter().map(|s| s.values.len()).sum();
+    let runs_per_task = (args.seeds.0.len() * values.max(1)) as u64;
     let vlm = vlm_preflight(
         &args.vlm,
         args.yes,
@@ -159,7 +165,7 @@ pub async fn run(args: BenchArgs) -> anyhow::Result<()> {
             save_frames: args.frames,
             vlm: vlm.clone(),
         },
-        sweep: args.sweep,
+        sweeps,
     };
     let progress = ProgressBar::new(0).with_style(
         ProgressStyle::with_template(

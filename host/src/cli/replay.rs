@@ -160,7 +160,11 @@ pub async fn run(args: ReplayArgs) -> anyhow::Result<()> {
     let mut options = options.unwrap_or_else(|| VlmOptions::new("replay"));
     // The prompt does not affect a replay, and its file may be gone.
     options.prompt = None;
-    let brief = TaskBrief::new(recorded.task, &scenario.tasks);
+    let brief = TaskBrief::new(
+        recorded.task,
+        &scenario.tasks,
+        scenario.geometry(recorded.task),
+    );
     let answers = completions.len();
     let mut policy =
         VlmPolicy::with_backend(&brief, &options, Box::new(ReplayBackend::new(completions)))?;

@@ -128,7 +128,10 @@ pub async fn run(args: RunArgs) -> anyhow::Result<()> {
     let limits = bench
         .as_ref()
         .map_or_else(|| scenario.tasks.clone(), |b| b.limits.clone());
-    let brief = TaskBrief::new(args.task, &limits);
+    let geometry = bench
+        .as_ref()
+        .map_or_else(|| scenario.geometry(args.task), |b| b.geometry.clone());
+    let brief = TaskBrief::new(args.task, &limits, geometry);
     let vlm = args.vlm.options();
     if vlm.is_some() && args.policy != "vlm" {
         anyhow::bail!("--model applies to --policy vlm only");

@@ -1,8 +1,25 @@
-//! Image analysis shared by calibration, bench scoring and the image-only agent: finding
-//! beams in a frame and finding what changed between two frames.
+//! Image analysis shared by calibration, bench scoring and the image-only agent: a frame's
+//! light above its background ([`Picture`]), the beams in it ([`find_beams`]), and what
+//! changed between two frames ([`changes`]).
 
 mod beams;
+mod changes;
 mod gaussian;
+mod picture;
+#[cfg(test)]
+pub(crate) mod synthetic;
+#[cfg(test)]
+mod tests;
 
-pub use beams::{BeamSpot, Changes, changes, find_beams, nearest, saturated_centre};
+pub use beams::{Beam, find_beams};
+pub use changes::{Changes, changes};
 pub use gaussian::GaussianFit;
+pub use picture::Picture;
+
+/// The beam nearest to `point`.
+pub fn nearest(beams: &[Beam], point: [f64; 2]) -> Option<&Beam> {
+    beams.iter().min_by(|a, b| {
+        let d = |s: &Beam| (s.centre[0] - point[0]).hypot(s.centre[1] - point[1]);
+        d(a).total_cmp(&d(b))
+    })
+}

@@ -10,7 +10,7 @@ use anyhow::{Context, bail};
 use serde::{Deserialize, Serialize};
 
 use crate::link::Endpoint;
-use crate::task::{TaskKind, TaskLimits, cavity, michelson};
+use crate::task::{BenchGeometry, TaskKind, TaskLimits, cavity, michelson};
 
 /// A whole rig file.
 #[derive(Clone, Debug, Serialize, Deserialize)]
@@ -34,6 +34,10 @@ pub struct RigFile {
     pub limits: TaskLimits,
     #[serde(default)]
     pub scoring: ScoringSpec,
+    /// What is known of the bench's geometry (every field optional; docs/lab.md): told to
+    /// the policies.
+    #[serde(default)]
+    pub geometry: BenchGeometry,
 }
 
 /// One motor controller.
@@ -345,6 +349,9 @@ impl RigFile {
             }
         }
         self.limits.validate().map_err(anyhow::Error::msg)?;
+        self.geometry
+            .validate("geometry")
+            .map_err(anyhow::Error::msg)?;
         Ok(())
     }
 

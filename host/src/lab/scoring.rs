@@ -8,7 +8,7 @@ use optalign_optics::{Frame, Station};
 
 use super::calibration::ResponseCalibration;
 use super::rigfile::RigFile;
-use crate::imaging::find_beams;
+use crate::imaging::{Picture, find_beams};
 use crate::rig::{RelayStateScore, Score};
 use crate::task::TaskKind;
 use crate::task::cavity::CavityScore;
@@ -82,7 +82,7 @@ impl LabScorer {
             f64::from(frame.width()) / 2.0,
             f64::from(frame.height()) / 2.0,
         ];
-        let spot = find_beams(frame)
+        let spot = find_beams(&Picture::new(frame))
             .into_iter()
             .find(|beam| beam.localised)
             .map(|beam| [beam.centre[0] - centre[0], beam.centre[1] - centre[1]]);
@@ -145,6 +145,7 @@ impl LabScorer {
                     aligned,
                     through_all_mirrors: c8.is_some(),
                     c8_offset_px: c8,
+                    camera: None,
                 })
             }
         }

@@ -203,7 +203,7 @@ impl PeerCore {
     pub fn shaft_positions(&self) -> Vec<i32> {
         (0..self.axes)
             .filter_map(|axis| self.mounts.mount(axis))
-            .map(|m| m.shaft_position())
+            .map(|m| m.mirror_position())
             .collect()
     }
 

@@ -26,6 +26,15 @@ pub struct MechanicsOptions {
     pub lost_step_probability: f64,
     /// Regions where the mount binds.
     pub stalls: Vec<StallRegion>,
+    /// Amplitude of the screws' periodic pitch error, steps.
+    #[serde(default)]
+    pub pitch_error: u32,
+    /// Period of the pitch error, steps.
+    #[serde(default)]
+    pub pitch_period: u32,
+    /// Elastic hysteresis of the screws beyond the dead band, steps either side.
+    #[serde(default)]
+    pub hysteresis: u32,
     /// Seed for the lost-step generators (deterministic runs).
     pub seed: u64,
 }
@@ -39,7 +48,8 @@ impl MechanicsOptions {
     fn mount(&self, axis: u8) -> MountModel {
         let mut model = MountModel::new(self.backlash)
             .with_seed(self.seed ^ (u64::from(axis) + 1).wrapping_mul(0x9e37_79b9_7f4a_7c15))
-            .with_lost_steps(self.lost_step_probability as f32);
+            .with_lost_steps(self.lost_step_probability as f32)
+            .with_screw(self.pitch_error, self.pitch_period, self.hysteresis);
         for stall in self.stalls.iter().filter(|s| s.axis == axis) {
             model = model.with_stall_region(stall.from, stall.to, stall.probability);
         }

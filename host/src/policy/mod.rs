@@ -21,7 +21,7 @@ use async_trait::async_trait;
 use optalign_optics::Frame;
 use serde::{Deserialize, Serialize};
 
-use crate::task::{Action, TaskKind, TaskLimits};
+use crate::task::{Action, BenchGeometry, TaskKind, TaskLimits};
 
 pub use factory::{BuiltPolicy, PolicyOptions, build_policy, policy_names};
 
@@ -32,15 +32,19 @@ pub struct TaskBrief {
     /// Bounds and budgets of the tasks (the policy reads its own task's).
     pub limits: TaskLimits,
     pub budget: usize,
+    /// What is known about the bench's geometry (from the rig file or the scenario).
+    pub geometry: BenchGeometry,
 }
 
 impl TaskBrief {
-    /// The brief for `task` under `limits`, with the task's own evaluation budget.
-    pub fn new(task: TaskKind, limits: &TaskLimits) -> Self {
+    /// The brief for `task` under `limits`, with the task's own evaluation budget, on a
+    /// bench of `geometry`.
+    pub fn new(task: TaskKind, limits: &TaskLimits, geometry: BenchGeometry) -> Self {
         Self {
             task,
             limits: limits.clone(),
             budget: limits.budget(task),
+            geometry,
         }
     }
 }

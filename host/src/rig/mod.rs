@@ -13,7 +13,7 @@ use optalign_optics::Frame;
 use crate::task::{Action, TaskKind};
 
 pub use motors::{MotorPath, SimMotors};
-pub use score::{RelayStateScore, Score};
+pub use score::{CameraView, RelayStateScore, Score};
 pub use sim::SimRig;
 
 /// What executing one action produced.

@@ -54,6 +54,9 @@ impl SimMotors {
             mechanics: MechanicsOptions {
                 backlash: mount.backlash_steps,
                 lost_step_probability: mount.lost_step_probability,
+                pitch_error: mount.pitch_error_steps,
+                pitch_period: mount.pitch_period_steps,
+                hysteresis: mount.hysteresis_steps,
                 seed,
                 ..MechanicsOptions::default()
             },

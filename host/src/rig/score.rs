@@ -18,6 +18,18 @@ pub struct RelayStateScore {
     pub through_all_mirrors: bool,
     /// Beam centre at C8, px from the image centre, when light reaches the C8 sensor.
     pub c8_offset_px: Option<[f64; 2]>,
+    /// Where the camera is now and the beam centre on its sensor, px from the image centre
+    /// (at the station's calibrated pose), when light reaches it: for analysis next to the
+    /// agent's claims. Unknown on a bench.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub camera: Option<CameraView>,
+}
+
+/// The camera's station and the beam's true place on it.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct CameraView {
+    pub station: optalign_optics::Station,
+    pub offset_px: Option<[f64; 2]>,
 }
 
 /// A scored state.

@@ -10,7 +10,7 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
 use super::motors::{MotorPath, SimMotors};
-use super::score::{RelayStateScore, Score};
+use super::score::{CameraView, RelayStateScore, Score};
 use super::{Executed, Rig};
 use crate::scenario::{ScenarioFile, TimingParams};
 use crate::task::cavity::CavityScore;
@@ -211,8 +211,9 @@ impl Rig for SimRig {
                     secondary_centre_px: Some(truth.secondary_centre_px),
                 })
             }
-            Scene::Relay { relay, .. } => {
+            Scene::Relay { relay, pose, .. } => {
                 let truth = relay.truth(&shafts);
+                let seen = &truth.stations[pose.station.index()];
                 Score::Relay(RelayStateScore {
                     aligned: aligned_mirrors(&truth, self.centred_tolerance_px),
                     through_all_mirrors: truth.mirrors.iter().all(|m| m.reached() && !m.clipped()),
@@ -220,6 +221,10 @@ impl Rig for SimRig {
                         .lit
                         .then_some(truth.c8_offset_px)
                         .flatten(),
+                    camera: Some(CameraView {
+                        station: pose.station,
+                        offset_px: seen.lit.then_some(seen.offset_px).flatten(),
+                    }),
                 })
             }
         }

@@ -4,12 +4,14 @@
 //! an evaluation.
 
 pub mod cavity;
+mod geometry;
 pub mod michelson;
 pub mod relay;
 
 use serde::{Deserialize, Serialize};
 
 pub use cavity::CavityLimits;
+pub use geometry::BenchGeometry;
 pub use michelson::MichelsonLimits;
 pub use relay::{RelayAction, RelayLimits};
 

@@ -5,25 +5,26 @@
 //! with no clear spot when mirror apertures clip part of the beam, and only background and
 //! noise when no light arrives. Submodules: `geometry` (vectors), `layout` (where things
 //! are), `trace` (mirror hits and clipping), `camera` (stations and placement error),
-//! `speckle` (the speckle pattern).
+//! with the speckle pattern from the crate's `speckle` module.
 
 mod camera;
 mod geometry;
 mod layout;
-mod speckle;
 mod trace;
 
 pub use camera::{CameraPose, Station, UnknownStation};
 pub use trace::MirrorTruth;
 
 use layout::Layout;
-use speckle::SpeckleTile;
 use trace::{Trace, trace};
 
 use crate::frame::Frame;
 use crate::math::{SPOT_EXTENT, gaussian_fraction, gaussian_profile, spot_span};
+use crate::profile::BeamShape;
 use crate::readout::{Readout, mix64, scene_key};
 use crate::scenario::{RelayParams, ScenarioError};
+use crate::sensor::{FrameDraw, Sensor};
+use crate::speckle::SpeckleTile;
 
 /// What a camera at one station (at its calibrated pose) would receive.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -137,6 +138,8 @@ pub struct Relay {
     offsets: [i32; 8],
     key: u64,
     speckle: SpeckleTile,
+    spot: BeamShape,
+    sensor: Sensor,
 }
 
 impl Relay {
@@ -149,11 +152,35 @@ impl Relay {
         params.validate()?;
         let key = scene_key(params.noise.seed, &offsets);
         let speckle = SpeckleTile::new(params.speckle.grain_px, mix64(params.noise.seed));
+        let pitch = params.pixel_pitch_mm();
+        let realism = &params.realism;
+        let spot = BeamShape::new(
+            &realism.beam_profile,
+            &realism.texture,
+            [
+                params.beam_radius_mm / pitch[0],
+                params.beam_radius_mm / pitch[1],
+            ],
+            realism.orientation(),
+            mix64(params.noise.seed ^ 1),
+        )
+        .map_err(|reason| ScenarioError::Invalid {
+            field: "relay.realism.beam_profile".into(),
+            reason,
+        })?;
+        let sensor = Sensor::new(
+            realism,
+            params.camera.width_px as usize,
+            params.camera.height_px as usize,
+            key,
+        );
         Ok(Self {
             optics: Optics::new(params),
             offsets,
             key,
             speckle,
+            spot,
+            sensor,
         })
     }
 
@@ -179,23 +206,25 @@ impl Relay {
         let p = &self.optics.params;
         let (w, h) = (p.camera.width_px as usize, p.camera.height_px as usize);
         let readout = Readout::new(&p.noise, self.key, frame_index);
-        let mut pixels = vec![0u8; w * h];
-
         let trace = self.optics.trace(&self.offsets, shaft);
         let plane = self.optics.layout.stations[pose.station.index()]
             .perturbed(pose.offset_mm, pose.rotation_rad);
         let lit = trace.beams[pose.station.segment()]
             .and_then(|beam| plane.intersect(&beam.ray).map(|hit| (beam, hit)));
         let Some((beam, [u, v])) = lit else {
-            for (y, out) in pixels.chunks_exact_mut(w).enumerate() {
-                readout.finish_row(y as u32, None, out);
-            }
+            let pixels = self.sensor.expose(&readout, |_, _| false);
             return Frame::new(p.camera.width_px, p.camera.height_px, pixels)
                 .expect("buffer sized to the frame");
         };
 
+        let draw = FrameDraw::new(&p.realism, self.key, frame_index);
         let pitch = p.pixel_pitch_mm();
-        let centre = [w as f64 / 2.0 + u / pitch[0], h as f64 / 2.0 + v / pitch[1]];
+        let o = p.realism.orientation();
+        let d = [u / pitch[0], v / pitch[1]];
+        let centre = [
+            w as f64 / 2.0 + o[0][0] * d[0] + o[0][1] * d[1] + draw.jitter[0][0],
+            h as f64 / 2.0 + o[1][0] * d[0] + o[1][1] * d[1] + draw.jitter[0][1],
+        ];
         let radius = [p.beam_radius_mm / pitch[0], p.beam_radius_mm / pitch[1]];
         // Light lost upstream on a mirror edge, or falling past the sensor's edge, scatters:
         // the more is lost, the more of what remains shows as speckle instead of a spot.
@@ -208,17 +237,13 @@ impl Relay {
             * gaussian_fraction(v, sigma, -half[1], half[1]);
         let lost = 1.0 - beam.power * on_sensor;
         let clean = (-(lost / p.speckle.clip_tolerance).powi(2)).exp();
-        let spot = Layer::new(
-            centre,
-            radius,
-            p.spot_peak_level * beam.power * clean,
-            [w, h],
-        );
+        let spot = self.spot.place(centre, [w, h]);
+        let spot_peak = (p.spot_peak_level * beam.power * clean * draw.gain) as f32;
         let cloud_radius = radius.map(|r| r * p.speckle.spread);
         let cloud = Layer::new(
             centre,
             cloud_radius,
-            p.speckle.level * beam.power * (1.0 - clean),
+            p.speckle.level * beam.power * (1.0 - clean) * draw.gain,
             [w, h],
         );
         // The speckle pattern moves with the cloud and changes with the clipping geometry.
@@ -227,34 +252,25 @@ impl Relay {
             ((beam.clip_key >> 32) & 0xffff) as isize - centre[1].round() as isize,
         ];
 
-        let mut signal = vec![0f32; w];
-        for (y, out) in pixels.chunks_exact_mut(w).enumerate() {
-            let spot_row = spot.row(y);
-            let cloud_row = cloud.row(y);
-            if spot_row.is_none() && cloud_row.is_none() {
-                readout.finish_row(y as u32, None, out);
-                continue;
-            }
-            signal.fill(0.0);
-            if let Some(a) = spot_row {
-                for (s, g) in signal[spot.cols.clone()].iter_mut().zip(&spot.gx) {
-                    *s += a * g;
-                }
-            }
-            if let Some(a) = cloud_row {
+        let mut scratch = vec![0f32; w];
+        let pixels = self.sensor.expose(&readout, |y, row| {
+            let mut lit =
+                spot_peak > 0.0 && spot.add_intensity_row(y, spot_peak, &mut scratch, row);
+            if let Some(a) = cloud.row(y) {
                 let ty = (y as isize).wrapping_add(shift[1]) as usize;
                 for ((x, s), g) in cloud
                     .cols
                     .clone()
-                    .zip(&mut signal[cloud.cols.clone()])
+                    .zip(&mut row[cloud.cols.clone()])
                     .zip(&cloud.gx)
                 {
                     let tx = (x as isize).wrapping_add(shift[0]) as usize;
                     *s += a * g * self.speckle.at(tx, ty);
                 }
+                lit = true;
             }
-            readout.finish_row(y as u32, Some(&signal), out);
-        }
+            lit
+        });
         Frame::new(p.camera.width_px, p.camera.height_px, pixels)
             .expect("buffer sized to the frame")
     }

@@ -3,7 +3,7 @@
 use serde::{Deserialize, Serialize};
 
 use super::check::Check;
-use super::{NoiseParams, ScenarioError};
+use super::{NoiseParams, RealismParams, ScenarioError};
 
 /// The cavity scene: a bright fixed primary beam, a dim secondary beam steered by the
 /// in-coupler's two axes, stationary artefacts and noise, summed in intensity.
@@ -41,6 +41,9 @@ pub struct CavityParams {
     pub ghosts: Vec<GhostParams>,
     /// Camera read-out.
     pub noise: NoiseParams,
+    /// Realism layers (the beams' shape, flicker, jitter, camera effects). All off by
+    /// default. The beam profile shapes both the primary and the secondary (one laser).
+    pub realism: RealismParams,
 }
 
 /// The primary beam: fixed on the image, bright enough to saturate its core.
@@ -125,6 +128,7 @@ impl Default for CavityParams {
                 },
             ],
             noise: NoiseParams::default(),
+            realism: RealismParams::default(),
         }
     }
 }
@@ -219,6 +223,7 @@ impl CavityParams {
             g.gt("radius_px", ghost.radius_px, 0.0)?;
             g.ge("peak_level", ghost.peak_level, 0.0)?;
         }
-        self.noise.validate("cavity.noise")
+        self.noise.validate("cavity.noise")?;
+        self.realism.validate("cavity.realism")
     }
 }

@@ -15,9 +15,14 @@ impl<'a> Check<'a> {
         Self { prefix }
     }
 
+    /// The dotted path of `field` in this table.
+    pub(crate) fn path(&self, field: &str) -> String {
+        format!("{}.{}", self.prefix, field)
+    }
+
     fn fail(&self, field: &str, reason: String) -> ScenarioError {
         ScenarioError::Invalid {
-            field: format!("{}.{}", self.prefix, field),
+            field: self.path(field),
             reason,
         }
     }

@@ -3,7 +3,7 @@
 use serde::{Deserialize, Serialize};
 
 use super::check::Check;
-use super::{NoiseParams, ScenarioError};
+use super::{NoiseParams, RealismParams, ScenarioError};
 
 /// The Michelson scene: two returning Gaussian beams on one camera, each steered by one
 /// two-axis mirror, interfering where they overlap.
@@ -42,8 +42,14 @@ pub struct MichelsonParams {
     pub fringe_angle_deg: f64,
     /// Relative phase at the image centre, radians. Default 0 (bright fringe at the centre).
     pub fringe_phase_rad: f64,
+    /// RMS wander of the relative phase from frame to frame, radians: vibration and air
+    /// currents changing the path difference (the fringes drift across the overlap while
+    /// nothing is commanded). Default 0.
+    pub fringe_drift_rad: f64,
     /// Camera read-out.
     pub noise: NoiseParams,
+    /// Realism layers (beam shapes, flicker, jitter, camera effects). All off by default.
+    pub realism: RealismParams,
 }
 
 impl Default for MichelsonParams {
@@ -60,7 +66,9 @@ impl Default for MichelsonParams {
             fringe_period_px: 42.0,
             fringe_angle_deg: 30.0,
             fringe_phase_rad: 0.0,
+            fringe_drift_rad: 0.0,
             noise: NoiseParams::default(),
+            realism: RealismParams::default(),
         }
     }
 }
@@ -98,7 +106,9 @@ impl MichelsonParams {
         check.ge("fringe_period_px", self.fringe_period_px, 2.0)?;
         check.finite("fringe_angle_deg", self.fringe_angle_deg)?;
         check.finite("fringe_phase_rad", self.fringe_phase_rad)?;
-        self.noise.validate("michelson.noise")
+        check.within("fringe_drift_rad", self.fringe_drift_rad, 0.0, 100.0)?;
+        self.noise.validate("michelson.noise")?;
+        self.realism.validate("michelson.realism")
     }
 
     /// The sensitivity matrix of mirror `k` (0 or 1).

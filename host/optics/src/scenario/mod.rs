@@ -10,6 +10,7 @@ mod cavity;
 mod check;
 mod michelson;
 mod noise;
+mod realism;
 mod relay;
 
 pub use cavity::{
@@ -18,6 +19,7 @@ pub use cavity::{
 pub(crate) use check::MAX_IMAGE_SIDE_PX;
 pub use michelson::MichelsonParams;
 pub use noise::NoiseParams;
+pub use realism::{BeamProfile, RealismParams, StraySpot, Texture};
 pub use relay::{RelayCameraParams, RelayParams, SpeckleParams};
 
 use serde::{Deserialize, Serialize};

@@ -3,7 +3,7 @@
 use serde::{Deserialize, Serialize};
 
 use super::check::Check;
-use super::{NoiseParams, ScenarioError};
+use super::{NoiseParams, RealismParams, ScenarioError};
 
 /// The relay scene: an input beam turned 90 degrees in the table plane by each of four
 /// circular mirrors M1..M4 laid out on a rectangle, observed by one camera at one of eight
@@ -44,6 +44,9 @@ pub struct RelayParams {
     pub speckle: SpeckleParams,
     /// Camera read-out.
     pub noise: NoiseParams,
+    /// Realism layers (the spot's shape, flicker, jitter, camera effects, the same at every
+    /// station). All off by default.
+    pub realism: RealismParams,
 }
 
 /// The camera moved between the stations, and how precisely it is placed.
@@ -99,6 +102,7 @@ impl Default for RelayParams {
             camera: RelayCameraParams::default(),
             speckle: SpeckleParams::default(),
             noise: NoiseParams::default(),
+            realism: RealismParams::default(),
         }
     }
 }
@@ -170,7 +174,8 @@ impl RelayParams {
         speckle.gt("spread", self.speckle.spread, 0.0)?;
         speckle.ge("level", self.speckle.level, 0.0)?;
         speckle.gt("clip_tolerance", self.speckle.clip_tolerance, 0.0)?;
-        self.noise.validate("relay.noise")
+        self.noise.validate("relay.noise")?;
+        self.realism.validate("relay.realism")
     }
 
     /// Length of segment `s` (0: M1->M2, 1: M2->M3, 2: M3->M4); `None` for the open output.

@@ -1,11 +1,13 @@
 //! Charts of a bench, each written as PNG and SVG: speed against accuracy, best-so-far
-//! convergence, relay milestones, sweep curves, and one run's error curve. Text uses the
+//! convergence, relay milestones, sweep curves, the stability map of all swept knobs, and
+//! one run's error curve. Text uses the
 //! DejaVu Sans font compiled into the binary, so no system font is needed.
 
 mod convergence;
 mod milestones;
 mod run;
 mod speed;
+mod stability;
 mod sweep;
 
 use std::io::BufWriter;
@@ -214,20 +216,36 @@ pub fn write_bench_charts(
     Ok(written)
 }
 
-/// Writes the sweep chart (success rate and terminal error against the knob, per task and
-/// policy) into `dir`. Returns the files written.
-pub fn write_sweep_chart(
+/// Writes the charts of a sweep into `dir`: per knob, success rate and terminal error
+/// against its value (per task and policy); per task, the stability map of every knob
+/// value and policy. Returns the files written.
+pub fn write_sweep_charts(
     dir: &Path,
     records: &[RunRecord],
     tasks: &[TaskKind],
     policies: &[String],
     settings: &[Setting],
 ) -> anyhow::Result<Vec<PathBuf>> {
-    let Some(knob) = settings.first().map(|s| s.knob) else {
-        return Ok(Vec::new());
-    };
-    let chart = sweep::SweepChart::new(records, tasks, policies, settings);
-    save(&chart, dir, &format!("sweep_{}", knob.name()))
+    let mut written = Vec::new();
+    for knob in super::results::knobs_of(settings) {
+        let values: Vec<Setting> = settings
+            .iter()
+            .copied()
+            .filter(|s| s.knob == knob)
+            .collect();
+        let swept: Vec<TaskKind> = tasks
+            .iter()
+            .copied()
+            .filter(|t| knob.applies_to(*t))
+            .collect();
+        let chart = sweep::SweepChart::new(records, &swept, policies, &values);
+        written.extend(save(&chart, dir, &format!("sweep_{}", knob.name()))?);
+    }
+    for &task in tasks {
+        let map = stability::StabilityMap::new(records, task, policies, settings);
+        written.extend(save(&map, dir, &format!("stability_{task}"))?);
+    }
+    Ok(written)
 }
 
 #[cfg(test)]

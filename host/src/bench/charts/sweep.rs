@@ -4,7 +4,7 @@
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
-use super::{Chart, DrawResult, error_unit, grid_mesh, legend, log_range, policy_colour};
+use super::{Chart, DrawResult, error_unit, grid_mesh, legend, log_range, policy_colour, tick};
 use crate::bench::results::{PolicyStats, select};
 use crate::bench::{Knob, RunRecord, Setting};
 use crate::task::TaskKind;
@@ -39,14 +39,22 @@ impl SweepChart {
                     .map(|(i, policy)| Series {
                         name: policy.clone(),
                         colour: policy_colour(policy, i),
-                        points: settings
-                            .iter()
-                            .map(|&setting| {
-                                let stats =
-                                    PolicyStats::of(&select(records, task, policy, Some(setting)));
-                                (setting.value, stats.success_rate(), stats.terminal_mean)
-                            })
-                            .collect(),
+                        points: {
+                            let mut points: Vec<_> = settings
+                                .iter()
+                                .map(|&setting| {
+                                    let stats = PolicyStats::of(&select(
+                                        records,
+                                        task,
+                                        policy,
+                                        Some(setting),
+                                    ));
+                                    (setting.value, stats.success_rate(), stats.terminal_mean)
+                                })
+                                .collect();
+                            points.sort_by(|a, b| a.0.total_cmp(&b.0));
+                            points
+                        },
                     })
                     .collect();
                 (task, series)
@@ -77,8 +85,14 @@ impl SweepChart {
             .x_label_area_size(36)
             .y_label_area_size(50)
             .build_cartesian_2d(self.x_range.0..self.x_range.1, 0f64..1.05)?;
+        let knob = self.knob;
+        let value_label = |v: &f64| match knob.value_names() {
+            Some(_) => knob.format_value(v.round()),
+            None => tick(v),
+        };
         grid_mesh(&mut chart)
             .x_desc(self.knob.label())
+            .x_label_formatter(&value_label)
             .label_style(("sans-serif", 12))
             .draw()?;
         for s in series {
@@ -120,9 +134,15 @@ impl SweepChart {
             .x_label_area_size(36)
             .y_label_area_size(60)
             .build_cartesian_2d(self.x_range.0..self.x_range.1, (lo..hi).log_scale())?;
+        let knob = self.knob;
+        let value_label = |v: &f64| match knob.value_names() {
+            Some(_) => knob.format_value(v.round()),
+            None => tick(v),
+        };
         grid_mesh(&mut chart)
             .y_labels(6)
             .x_desc(self.knob.label())
+            .x_label_formatter(&value_label)
             .label_style(("sans-serif", 12))
             .draw()?;
         if series

@@ -6,7 +6,7 @@ use anyhow::{Context, bail};
 use optalign_protocol::{AxisConfig, BacklashMode, Command};
 
 use super::fit::{BacklashFit, fit_backlash};
-use crate::imaging::{find_beams, nearest};
+use crate::imaging::{Picture, find_beams, nearest};
 use crate::lab::rig::LabRig;
 
 /// The measured loop and its fit.
@@ -80,7 +80,7 @@ async fn scan_loop(
     step: i32,
 ) -> anyhow::Result<BacklashReport> {
     let start = rig.commanded()[axis];
-    let first = find_beams(&rig.capture().await?);
+    let first = find_beams(&Picture::new(&rig.capture().await?));
     let Some(mut tracked) = first.first().copied() else {
         bail!(
             "no beam is visible in the camera image; bring the beam into view before calibrating backlash"
@@ -90,7 +90,7 @@ async fn scan_loop(
     let mut positions = Vec::new();
     for offset in loop_commands(amplitude, step) {
         rig.move_to(&[(axis, start + offset)]).await?;
-        let beams = find_beams(&rig.capture().await?);
+        let beams = find_beams(&Picture::new(&rig.capture().await?));
         let beam = nearest(&beams, tracked.centre).copied().with_context(|| {
             format!("the beam left the image at {offset:+} steps; use a smaller --amplitude")
         })?;

@@ -6,7 +6,7 @@ use anyhow::{Context, bail};
 use serde::{Deserialize, Serialize};
 
 use super::fit::fit_affine;
-use crate::imaging::{find_beams, nearest};
+use crate::imaging::{Picture, find_beams, nearest};
 use crate::lab::calibration::MirrorResponse;
 use crate::lab::rig::LabRig;
 use crate::lab::rigfile::task_axis_names;
@@ -45,7 +45,7 @@ pub async fn calibrate_response(
     anyhow::ensure!(span > 0, "--span must be a positive number of steps");
     let axes = mirror_axes(rig.task(), mirror)?;
     let start = rig.commanded().to_vec();
-    let first = find_beams(&rig.capture().await?);
+    let first = find_beams(&Picture::new(&rig.capture().await?));
     if first.is_empty() {
         bail!(
             "no beam is visible in the camera image; bring mirror {mirror}'s beam into view before calibrating"
@@ -54,7 +54,7 @@ pub async fn calibrate_response(
     // Which beam is this mirror's: the one that moves when its first axis moves.
     let probe = span / 2;
     rig.move_to(&[(axes[0], start[axes[0]] + probe)]).await?;
-    let moved = find_beams(&rig.capture().await?);
+    let moved = find_beams(&Picture::new(&rig.capture().await?));
     let ours = moved
         .iter()
         .map(|b| (b, nearest(&first, b.centre).map_or(f64::INFINITY, |n| distance(n.centre, b.centre))))
@@ -80,7 +80,7 @@ pub async fn calibrate_response(
             let target = [start[axes[0]] + da, start[axes[1]] + db];
             rig.move_to(&[(axes[0], target[0]), (axes[1], target[1])])
                 .await?;
-            let beams = find_beams(&rig.capture().await?);
+            let beams = find_beams(&Picture::new(&rig.capture().await?));
             let prediction = fit_affine(&steps, &measured)
                 .map(|fit| fit.predict([f64::from(target[0]), f64::from(target[1])]))
                 .unwrap_or(last.centre);

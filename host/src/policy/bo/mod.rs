@@ -165,6 +165,7 @@ mod tests {
             task: crate::task::TaskKind::Cavity,
             budget,
             limits,
+            geometry: Default::default(),
         };
         let objective = PrivilegedObjective::default();
         let mut bo = BayesOpt::new(&brief, objective.clone(), seed, BoSettings::default());

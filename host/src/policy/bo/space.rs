@@ -258,7 +258,7 @@ mod tests {
 
     fn brief(task: TaskKind) -> TaskBrief {
         let limits = TaskLimits::default();
-        TaskBrief::new(task, &limits)
+        TaskBrief::new(task, &limits, Default::default())
     }
 
     fn observation(remaining: usize) -> Observation {

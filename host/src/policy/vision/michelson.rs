@@ -1,58 +1,80 @@
 //! The Michelson agent: learns each mirror's motor-to-image response by moving one mirror
-//! at a time and watching which beam moves (the other stays put in the frame difference).
-//! Each probe after the first also steers the beam towards the centre along what is already
-//! known, so it stays in view; beams cut by the border are located by a spot fit. While
-//! the second mirror is probed, the first mirror's beam is parked out of the way. With
-//! both maps known it places the two beams a little apart on either side of the centre,
-//! where both are seen whole: when they land where the maps predicted it commands both to
-//! the centre (where they overlap in fringes) and declares done; otherwise it refits and
-//! checks again.
-
-use std::sync::Arc;
+//! at a time and watching which beam moves (everything else, the other beam and stray
+//! light, stays where it was). It assumes nothing about the bench beyond the command
+//! ranges: the first probe is a cautious share of the range, and every later one is sized
+//! from the response measured so far to move the beam a useful distance for this camera
+//! and this beam (grown when the beam hardly moved, shrunk when it left the image). Each
+//! probe after the first also steers the beam towards the centre along what is already
+//! known, so it stays in view. While the second mirror is probed, the first mirror's beam
+//! is parked out of the way. With both maps known it places the two beams apart on either
+//! side of the centre, where both are seen whole: when they land where the maps predicted
+//! it commands both to the centre (where they overlap in fringes) and declares done;
+//! otherwise it refits (estimating lost motion from reversals) and checks again.
 
 use optalign_optics::Frame;
 
-use super::model::{Tracker, Vec2, distance};
-use super::track::{BlobFilter, sighting, trusted_centre};
-use crate::imaging::{BeamSpot, find_beams};
+use super::model::{SAME_STEP, Sighting, Tracker, Vec2, distance};
+use super::see::{Motion, Seen, View, motion, stationary_pairs};
+use super::sight::{Scales, sight};
 use crate::task::{Action, MichelsonLimits};
 
-/// First probe length per axis, steps (about 420 px at the lab's response).
-const FIRST_PROBE: Vec2 = [2500.0, 2500.0];
+/// The first probe moves an axis by this share of its command range.
+const CAUTIOUS_SHARE: f64 = 1.0 / 32.0;
 
-/// Once one mirror's response is known, the other's probes aim to move its beam this far,
-/// px: well clear of its own footprint, yet likely to stay in view.
-const PROBE_PX: f64 = 400.0;
+/// Probe lengths stay within these shares of the command range.
+const PROBE_SHARES: Vec2 = [1.0 / 64.0, 1.0 / 3.0];
 
-/// Probe lengths derived from a measured response stay within these bounds, steps.
-const PROBE_BOUNDS: Vec2 = [400.0, 5000.0];
+/// While a beam shows only partly or not at all, probes search in steps of this share of
+/// the command range.
+const SEARCH_SHARE: f64 = 1.0 / 6.0;
 
-/// While one mirror is probed, the other's beam (once its map is known) waits this far
-/// left or right of the centre, on the side away from the probed beam, px.
-const PARK_PX: f64 = 680.0;
+/// A probe that did not move the beam visibly is grown by this factor; one that lost it
+/// is shrunk by it.
+const PROBE_GROWTH: f64 = 3.0;
 
-/// A known beam closer than this to the centre is parked before the other is probed, px.
-const PARK_WHEN_PX: f64 = 560.0;
+/// A probe aims to move the beam this many beam radii ...
+const PROBE_RADII: f64 = 3.2;
+
+/// ... but at most this share of the image's shorter side.
+const PROBE_VIEW_SHARE: f64 = 0.37;
+
+/// While one mirror is probed, the other's beam (once its map is known) waits this share
+/// of the image width left or right of the centre, on the side away from the probed beam...
+const PARK_SHARE: f64 = 0.35;
+
+/// ... when it is closer to the centre than this share of the width.
+const PARK_WHEN_SHARE: f64 = 0.29;
 
 /// The spread of probe commands a fit needs, as a share of the probe length: fitted spot
 /// centres are good to a pixel, so a short spread still gives a well-conditioned map.
 const MIN_SPREAD_SHARE: f64 = 0.125;
 
-/// Half the separation of the two beams at successive checks, px.
-const CHECK_APART_PX: [f64; 3] = [220.0, 300.0, 380.0];
+/// Half the separation of the two beams at successive checks, in beam radii.
+const CHECK_APART_RADII: [f64; 3] = [1.8, 2.4, 3.0];
+
+/// A check never puts a beam farther from the centre than this share of the shorter side.
+const CHECK_MAX_SHARE: f64 = 0.4;
 
 /// A beam a check did not find goes this many times the other beam's distance from the
 /// centre to the other side of it.
 const RELOCATE_SHARE: f64 = 1.5;
 
-/// A checked beam within this distance of its prediction confirms the map, px.
-const CONFIRM_PX: f64 = 3.0;
+/// A checked beam within this share of its radius of its prediction confirms the map
+/// (or within the measurement's own uncertainty, when that is larger).
+const CONFIRM_RADII: f64 = 0.025;
 
-/// A spot farther than this from a beam's prediction is not that beam, px.
-const MATCH_PX: f64 = 120.0;
+/// A beam found farther than this many radii from a beam's prediction is not that beam.
+const MATCH_RADII: f64 = 1.0;
 
-/// A partial sighting this close to a border was cut by it, px.
-const BORDER_PX: f64 = 80.0;
+/// A probe across a known direction keeps the beam's centre this many radii inside the
+/// image, so the beam shows whole.
+const IN_VIEW_RADII: f64 = 1.0;
+
+/// Position noise is taken to be at least this, px (a centroid is rarely better).
+const MIN_NOISE_PX: f64 = 0.5;
+
+/// A partial sighting this many radii from a border was cut by it.
+const BORDER_RADII: f64 = 0.6;
 
 /// What the last action was for.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -73,13 +95,17 @@ enum Step {
 pub struct MichelsonAgent {
     trackers: [Tracker; 2],
     command: [f64; 4],
-    previous: Option<(Arc<Frame>, Vec<BeamSpot>)>,
+    previous: Option<View>,
     /// Both mirrors' commands before the last action.
     before: [Vec2; 2],
     last: Step,
     checks: usize,
     /// A beam the last check did not find where its map put it.
     missed: Option<usize>,
+    /// What the images taught about this bench: beam sizes, jitter.
+    scales: Scales,
+    /// Command span per axis, steps.
+    spans: [f64; 4],
 }
 
 impl MichelsonAgent {
@@ -90,10 +116,12 @@ impl MichelsonAgent {
                 f64::from(limits.ranges[a].max),
             ]
         };
+        let spans = [0, 1, 2, 3].map(|a| range(a)[1] - range(a)[0]);
         Self {
             trackers: [0, 2].map(|a| {
-                let mut tracker = Tracker::new(FIRST_PROBE, [range(a), range(a + 1)]);
-                tracker.min_spread = MIN_SPREAD_SHARE * FIRST_PROBE[0].min(FIRST_PROBE[1]);
+                let probe = [CAUTIOUS_SHARE * spans[a], CAUTIOUS_SHARE * spans[a + 1]];
+                let mut tracker = Tracker::new(probe, [range(a), range(a + 1)]);
+                tracker.min_spread = MIN_SPREAD_SHARE * probe[0].min(probe[1]);
                 tracker
             }),
             command: [0.0; 4],
@@ -102,6 +130,8 @@ impl MichelsonAgent {
             last: Step::Start,
             checks: 0,
             missed: None,
+            scales: Scales::default(),
+            spans,
         }
     }
 
@@ -110,14 +140,17 @@ impl MichelsonAgent {
     }
 
     /// The next action for a new frame; `rejected` means nothing moved.
-    pub fn decide(&mut self, frame: &Arc<Frame>, rejected: bool, remaining: usize) -> Action {
-        let spots = find_beams(frame);
-        let confirmed = !rejected && self.observe(frame, &spots);
-        self.previous = Some((frame.clone(), spots));
-        let centre = [
-            f64::from(frame.width()) / 2.0,
-            f64::from(frame.height()) / 2.0,
-        ];
+    pub fn decide(&mut self, frame: &Frame, rejected: bool, remaining: usize) -> Action {
+        let view = View::new(frame);
+        self.scales.learn_view(&view);
+        let noise = self.scales.position_noise().max(MIN_NOISE_PX);
+        for tracker in &mut self.trackers {
+            tracker.noise = noise;
+        }
+        let confirmed = !rejected && self.observe(&view);
+        let centre = view.centre();
+        let size = view.size();
+        self.previous = Some(view);
         if remaining <= 1 {
             return self.finish(centre);
         }
@@ -125,13 +158,13 @@ impl MichelsonAgent {
             if remaining <= 3 {
                 return self.finish(centre);
             }
-            self.scale_probe(k);
+            self.scale_probe(k, size);
             let prefer = self.trackers[k]
                 .partial
                 .last()
-                .and_then(|(_, seen)| border_axis(*seen, centre));
-            let view = [2.0 * centre[0], 2.0 * centre[1]];
-            let u = self.trackers[k].next_probe_towards([0.0, 0.0], view, prefer);
+                .and_then(|s| self.border_axis(k, s.image, centre));
+            let margin = IN_VIEW_RADII * self.scales.radius(k);
+            let u = self.trackers[k].next_probe_towards([0.0, 0.0], size, margin, prefer);
             return self.probe(k, u, centre);
         }
         if confirmed || remaining <= 2 {
@@ -139,13 +172,13 @@ impl MichelsonAgent {
         }
         match self.missed {
             Some(k) => self.relocate(k, centre),
-            None => self.check(centre),
+            None => self.check(centre, size),
         }
     }
 
     /// What the agent believes after its last decision, for the transcript: what the
-    /// action was for and, per mirror, its sightings, fitted response and where it expects
-    /// that mirror's beam (px, x right, y down).
+    /// action was for and, per mirror, its sightings, fitted response, lost motion and
+    /// where it expects that mirror's beam (px, x right, y down).
     pub fn claims(&self, done: bool) -> serde_json::Value {
         let phase = match (done, self.last) {
             (true, _) => "both beams to the centre, done".to_string(),
@@ -159,69 +192,202 @@ impl MichelsonAgent {
         let mirrors: Vec<_> = (0..2)
             .map(|k| self.trackers[k].claims(self.mirror(k)))
             .collect();
-        serde_json::json!({ "phase": phase, "mirrors": mirrors })
+        serde_json::json!({
+            "phase": phase,
+            "mirrors": mirrors,
+            "bench": self.scales.claims(),
+        })
     }
 
     /// Learns from what the last action showed; true when a check confirmed both maps.
-    fn observe(&mut self, frame: &Frame, spots: &[BeamSpot]) -> bool {
-        let Some((before, before_spots)) = self.previous.take() else {
+    fn observe(&mut self, view: &View) -> bool {
+        let Some(before) = self.previous.take() else {
             return false;
         };
         match self.last {
             Step::Start => false,
             Step::Probe { k, parked } => {
-                let filter = BlobFilter {
-                    accept: None,
-                    companion: parked,
-                };
-                let seen = sighting(&before, frame, &before_spots, spots, true, &filter);
-                let (old, new) = (self.before[k], self.mirror(k));
-                self.trackers[k].record_move(old, new, seen);
-                if let Some((_, to)) = parked
-                    && let Some(c) = nearest_trusted(spots, frame, to)
-                {
-                    let u = self.mirror(1 - k);
-                    self.trackers[1 - k].add_clean(u, c);
-                }
+                self.observe_probe(&before, view, k, parked);
                 false
             }
-            Step::Check { predicted } => {
-                let found = predicted.map(|p| nearest_trusted(spots, frame, p));
-                if let [Some(a), Some(b)] = found
-                    && a == b
-                {
-                    return false;
-                }
-                self.missed = found.iter().position(Option::is_none);
-                for (k, seen) in found.iter().enumerate() {
-                    if let Some(c) = seen {
-                        let u = self.mirror(k);
-                        self.trackers[k].add_clean(u, *c);
-                    }
-                }
-                found
-                    .iter()
-                    .zip(predicted)
-                    .all(|(seen, p)| seen.is_some_and(|c| distance(c, p) < CONFIRM_PX))
-            }
+            Step::Check { predicted } => self.observe_check(&before, view, predicted),
         }
     }
 
-    /// A fresh mirror's probes move its beam about [`PROBE_PX`] at the other mirror's
+    fn observe_probe(
+        &mut self,
+        before: &View,
+        after: &View,
+        k: usize,
+        parked: Option<(Vec2, Vec2)>,
+    ) {
+        let j = 1 - k;
+        let pairs = stationary_pairs(&before.beams, &after.beams, self.scales.steady());
+        self.scales
+            .learn_steady(&pairs, &before.beams, &after.beams);
+        let (old, new) = (self.before[k], self.mirror(k));
+        let expected = self.trackers[k].predict_here(new);
+        let moved = motion(before, after, self.scales.steady(), expected, parked);
+        let untried = !self.trackers[k].tried_within(old, SAME_STEP);
+        let other_now = parked
+            .map(|(_, to)| to)
+            .or_else(|| self.trackers[j].predict_here(self.mirror(j)));
+        let other_then = parked
+            .map(|(from, _)| from)
+            .or_else(|| self.trackers[j].predict_here(self.before[j]));
+        let radius = self.scales.radius(j);
+        let judge = |seen: Seen, view: &View, other: Option<Vec2>| {
+            let sighting = sight(
+                &seen.beam,
+                view,
+                &self.scales,
+                k,
+                other.map(|p| (p, radius)),
+            );
+            match sighting {
+                Sighting::Clean(c) if !seen.whole => Sighting::Partial(c),
+                other => other,
+            }
+        };
+        let seen_to = moved.to.map(|s| judge(s, after, other_now));
+        let seen_from = moved.from.map(|s| judge(s, before, other_then));
+        self.adapt_probe(k, [seen_from, seen_to], &moved, distance(old, new), after);
+        self.trackers[k].file(new, seen_to);
+        if untried && let Some(s) = seen_from {
+            self.trackers[k].file_before_move(old, s);
+        }
+        if let Some(Sighting::Clean(_)) = seen_to
+            && let Some(s) = moved.to
+            && !s.beam.clipped
+        {
+            self.scales.learn_size(k, s.beam.size());
+        }
+        // The parked beam, found near where its map sent it.
+        if let Some((_, to)) = parked
+            && let Some(c) = self.find_near(after, j, to)
+        {
+            let u = self.mirror(j);
+            self.trackers[j].add_clean(u, c);
+        }
+        self.trackers[k].estimate_lost_motion();
+        if std::env::var("OPTALIGN_DEBUG").is_ok() {
+            eprintln!(
+                "probe k={k} old={old:?} new={new:?} from={:?} to={:?} seen_from={seen_from:?} seen_to={seen_to:?}",
+                moved.from.map(|s| (s.beam.centre, s.beam.size(), s.whole)),
+                moved.to.map(|s| (s.beam.centre, s.beam.size(), s.whole))
+            );
+        }
+    }
+
+    /// Sizes the next probes of mirror `k` from what the last one showed: a clean motion
+    /// gives the response and with it the command for a useful move; a beam that did not
+    /// move calls for a longer probe, one that left the image for a shorter one; while the
+    /// beam shows only partly or not at all, the probes search in big steps.
+    fn adapt_probe(
+        &mut self,
+        k: usize,
+        seen: [Option<Sighting>; 2],
+        motion: &Motion,
+        step: f64,
+        after: &View,
+    ) {
+        if step < SAME_STEP {
+            return;
+        }
+        let span = self.spans[2 * k].min(self.spans[2 * k + 1]);
+        let [lo, hi] = PROBE_SHARES.map(|share| share * span);
+        let probe = self.trackers[k].probe;
+        let scaled = |factor: f64| probe.map(|p| (p * factor).clamp(lo, hi));
+        let length = match seen {
+            [Some(Sighting::Clean(a)), Some(Sighting::Clean(b))] => {
+                let response = distance(a, b) / step;
+                let wanted = self.useful_move(k, after.size());
+                if response > 0.0 {
+                    let length = (wanted / response).clamp(lo, hi);
+                    [length, length]
+                } else {
+                    scaled(PROBE_GROWTH)
+                }
+            }
+            [_, Some(Sighting::Clean(_))] => probe,
+            [Some(Sighting::Clean(_)), None] => scaled(1.0 / PROBE_GROWTH),
+            [_, Some(Sighting::Partial(_))] => [SEARCH_SHARE * span; 2].map(|p| p.max(probe[0])),
+            [None, None] if motion.from.is_none() && !self.trackers[k].clean.is_empty() => {
+                // Seen before, no change now: it hardly moved.
+                scaled(PROBE_GROWTH)
+            }
+            [None, None] if self.trackers[k].clean.is_empty() => {
+                // Never seen whole: search in big steps, wider each time.
+                let search = (SEARCH_SHARE * span).max(probe[0] * PROBE_GROWTH.sqrt());
+                [search.min(hi); 2]
+            }
+            _ => probe,
+        };
+        self.trackers[k].set_probe(length);
+    }
+
+    /// How far a probe should move beam `k` on an image of `size`, px.
+    fn useful_move(&self, k: usize, size: Vec2) -> f64 {
+        (PROBE_RADII * self.scales.radius(k)).min(PROBE_VIEW_SHARE * size[0].min(size[1]))
+    }
+
+    fn observe_check(&mut self, _before: &View, view: &View, predicted: [Vec2; 2]) -> bool {
+        let found = [0, 1].map(|k| self.find_near(view, k, predicted[k]));
+        if let [Some(a), Some(b)] = found
+            && a == b
+        {
+            return false;
+        }
+        self.missed = found.iter().position(Option::is_none);
+        for (k, seen) in found.iter().enumerate() {
+            if let Some(c) = seen {
+                let u = self.mirror(k);
+                self.trackers[k].add_clean(u, *c);
+                self.trackers[k].estimate_lost_motion();
+            }
+        }
+        found
+            .iter()
+            .zip(predicted)
+            .enumerate()
+            .all(|(k, (seen, p))| seen.is_some_and(|c| distance(c, p) < self.confirm_px(k)))
+    }
+
+    /// How close a checked beam must land to its prediction to confirm the map, px.
+    fn confirm_px(&self, k: usize) -> f64 {
+        (CONFIRM_RADII * self.scales.radius(k)).max(3.0 * self.scales.position_noise())
+    }
+
+    /// The clean centre of beam `k` nearest `point` in `view`, within the match radius.
+    fn find_near(&self, view: &View, k: usize, point: Vec2) -> Option<Vec2> {
+        let radius = self.scales.radius(k);
+        view.beams
+            .iter()
+            .filter_map(|b| match sight(b, view, &self.scales, k, None) {
+                Sighting::Clean(c) => Some(c),
+                Sighting::Partial(_) => None,
+            })
+            .filter(|c| distance(*c, point) < MATCH_RADII * radius)
+            .min_by(|a, b| distance(*a, point).total_cmp(&distance(*b, point)))
+    }
+
+    /// A fresh mirror's probes move its beam a useful distance at the other mirror's
     /// measured response (mounts of one kind respond alike).
-    fn scale_probe(&mut self, k: usize) {
+    fn scale_probe(&mut self, k: usize, size: Vec2) {
         let Some(known) = self.trackers[1 - k].model() else {
             return;
         };
         if !self.trackers[k].is_fresh() {
             return;
         }
+        let wanted = self.useful_move(k, size);
+        let [lo, hi] =
+            [0, 1].map(|i| PROBE_SHARES[i] * self.spans[2 * k].min(self.spans[2 * k + 1]));
         let probe = [0, 1].map(|axis| {
             let response = known.gain[0][axis].hypot(known.gain[1][axis]);
-            (PROBE_PX / response.max(1e-9)).clamp(PROBE_BOUNDS[0], PROBE_BOUNDS[1])
+            (wanted / response.max(1e-9)).clamp(lo, hi)
         });
         self.trackers[k].set_probe(probe);
-        self.trackers[k].min_spread = MIN_SPREAD_SHARE * probe[0].min(probe[1]);
     }
 
     /// Moves mirror `k` to `u`; the other beam, when its map is known and it sits where the
@@ -229,35 +395,45 @@ impl MichelsonAgent {
     fn probe(&mut self, k: usize, u: Vec2, centre: Vec2) -> Action {
         self.before = [self.mirror(0), self.mirror(1)];
         let u = self.trackers[k].clamp(u);
-        self.command[2 * k] = u[0];
-        self.command[2 * k + 1] = u[1];
+        self.set_mirror(k, u);
         let j = 1 - k;
         let mut parked = None;
-        if let Some(model) = self.trackers[j].local_model() {
-            let now = model.predict(self.mirror(j));
+        if let Some(now) = self.trackers[j].predict_here(self.mirror(j)) {
             let probed_x = self.trackers[k]
                 .clean
                 .last()
                 .or(self.trackers[k].partial.last())
-                .map_or(centre[0], |(_, p)| p[0]);
+                .map_or(centre[0], |s| s.image[0]);
             let side = if probed_x > centre[0] { -1.0 } else { 1.0 };
-            let spot = [centre[0] + side * PARK_PX, centre[1]];
-            if distance(now, centre) < PARK_WHEN_PX
-                && let Some(v) = model.solve(spot)
-                && self.trackers[j].clamp(v) == v
+            let width = 2.0 * centre[0];
+            let spot = [centre[0] + side * PARK_SHARE * width, centre[1]];
+            if distance(now, centre) < PARK_WHEN_SHARE * width
+                && let Some(v) = self.trackers[j].command_for(spot, self.mirror(j))
+                && let Some(landing) =
+                    self.trackers[j].predict(v, move_dir(self.mirror(j), v, self.trackers[j].dir))
+                && distance(landing, spot) < self.scales.radius(j)
             {
-                self.command[2 * j] = v[0];
-                self.command[2 * j + 1] = v[1];
-                parked = Some((now, model.predict(v)));
+                self.set_mirror(j, v);
+                parked = Some((now, landing));
             }
         }
         self.last = Step::Probe { k, parked };
         self.action(false)
     }
 
-    /// Both beams a little apart on either side of the centre, where each is seen whole.
-    fn check(&mut self, centre: Vec2) -> Action {
-        let apart = CHECK_APART_PX[self.checks.min(CHECK_APART_PX.len() - 1)];
+    /// Sets mirror `k`'s command, booking the move on its tracker.
+    fn set_mirror(&mut self, k: usize, u: Vec2) {
+        let from = self.mirror(k);
+        self.trackers[k].moved(from, u);
+        self.command[2 * k] = u[0];
+        self.command[2 * k + 1] = u[1];
+    }
+
+    /// Both beams apart on either side of the centre, where each is seen whole.
+    fn check(&mut self, centre: Vec2, size: Vec2) -> Action {
+        let radius = 0.5 * (self.scales.radius(0) + self.scales.radius(1));
+        let apart = (CHECK_APART_RADII[self.checks.min(CHECK_APART_RADII.len() - 1)] * radius)
+            .min(CHECK_MAX_SHARE * size[0].min(size[1]));
         let layouts = [
             [[-apart, 0.0], [apart, 0.0]],
             [[0.0, -apart], [0.0, apart]],
@@ -268,12 +444,13 @@ impl MichelsonAgent {
         let mut chosen = None;
         for layout in layouts.iter().cycle().skip(first).take(layouts.len()) {
             let targets = layout.map(|d| [centre[0] + d[0], centre[1] + d[1]]);
-            let solved = [0, 1].map(|k| self.trackers[k].local_model()?.solve(targets[k]));
+            let solved = [0, 1].map(|k| self.trackers[k].command_for(targets[k], self.mirror(k)));
             if let [Some(a), Some(b)] = solved {
-                let within = [a, b]
-                    .iter()
-                    .enumerate()
-                    .all(|(k, u)| self.trackers[k].clamp(*u) == *u);
+                let within = [a, b].iter().enumerate().zip(targets).all(|((k, u), t)| {
+                    self.trackers[k]
+                        .predict(*u, move_dir(self.mirror(k), *u, self.trackers[k].dir))
+                        .is_some_and(|p| distance(p, t) < 1.0)
+                });
                 if within || chosen.is_none() {
                     chosen = Some([a, b]);
                 }
@@ -289,12 +466,8 @@ impl MichelsonAgent {
         };
         let mut predicted = [[0.0; 2]; 2];
         for (k, u) in solved.into_iter().enumerate() {
-            let u = self.trackers[k].clamp(u);
-            self.command[2 * k] = u[0];
-            self.command[2 * k + 1] = u[1];
-            if let Some(model) = self.trackers[k].local_model() {
-                predicted[k] = model.predict(u);
-            }
+            self.set_mirror(k, u);
+            predicted[k] = self.trackers[k].predict_here(u).unwrap_or(centre);
         }
         self.last = Step::Check { predicted };
         self.action(false)
@@ -305,32 +478,26 @@ impl MichelsonAgent {
     fn relocate(&mut self, k: usize, centre: Vec2) -> Action {
         self.missed = None;
         let other = self.trackers[1 - k]
-            .local_model()
-            .map_or(centre, |m| m.predict(self.mirror(1 - k)));
+            .predict_here(self.mirror(1 - k))
+            .unwrap_or(centre);
         let target = [
             centre[0] + RELOCATE_SHARE * (centre[0] - other[0]),
             centre[1] + RELOCATE_SHARE * (centre[1] - other[1]),
         ];
-        let u = self.aim(k, target).unwrap_or(self.mirror(k));
+        let u = self.trackers[k]
+            .command_for(target, self.mirror(k))
+            .unwrap_or(self.mirror(k));
         self.before = [self.mirror(0), self.mirror(1)];
-        self.command[2 * k] = u[0];
-        self.command[2 * k + 1] = u[1];
+        self.set_mirror(k, u);
         self.last = Step::Probe { k, parked: None };
         self.action(false)
-    }
-
-    /// The command putting mirror `k`'s beam at `point`, within range.
-    fn aim(&self, k: usize, point: Vec2) -> Option<Vec2> {
-        let u = self.trackers[k].local_model()?.solve(point)?;
-        Some(self.trackers[k].clamp(u))
     }
 
     /// Both beams to the centre, done.
     fn finish(&mut self, centre: Vec2) -> Action {
         for k in 0..2 {
-            if let Some(u) = self.aim(k, centre) {
-                self.command[2 * k] = u[0];
-                self.command[2 * k + 1] = u[1];
+            if let Some(u) = self.trackers[k].command_for(centre, self.mirror(k)) {
+                self.set_mirror(k, u);
             }
         }
         self.action(true)
@@ -342,28 +509,33 @@ impl MichelsonAgent {
             done,
         }
     }
-}
 
-/// The trusted spot centre nearest `point`, within [`MATCH_PX`].
-fn nearest_trusted(spots: &[BeamSpot], frame: &Frame, point: Vec2) -> Option<Vec2> {
-    spots
-        .iter()
-        .filter_map(|s| trusted_centre(s, frame))
-        .filter(|c| distance(*c, point) < MATCH_PX)
-        .min_by(|a, b| distance(*a, point).total_cmp(&distance(*b, point)))
-}
-
-/// The axis that moves a beam seen at `point` away from the border it is cut by: 1
-/// (vertical) at the top or bottom, 0 at the left or right (nominally, axis 1 of a mount
-/// tilts horizontally and axis 2 vertically; the agent still measures signs and scales).
-fn border_axis(point: Vec2, centre: Vec2) -> Option<usize> {
-    let gap = |axis: usize| centre[axis] - (point[axis] - centre[axis]).abs();
-    let (horizontal, vertical) = (gap(0), gap(1));
-    if vertical < BORDER_PX && vertical < horizontal {
-        Some(1)
-    } else if horizontal < BORDER_PX {
-        Some(0)
-    } else {
-        None
+    /// The axis that moves beam `k` seen at `point` away from the border it is cut by: 1
+    /// (vertical) at the top or bottom, 0 at the left or right (nominally, axis 1 of a mount
+    /// tilts horizontally and axis 2 vertically; the agent still measures signs and scales).
+    fn border_axis(&self, k: usize, point: Vec2, centre: Vec2) -> Option<usize> {
+        let border = BORDER_RADII * self.scales.radius(k);
+        let gap = |axis: usize| centre[axis] - (point[axis] - centre[axis]).abs();
+        let (horizontal, vertical) = (gap(0), gap(1));
+        if vertical < border && vertical < horizontal {
+            Some(1)
+        } else if horizontal < border {
+            Some(0)
+        } else {
+            None
+        }
     }
+}
+
+/// The direction each axis moves in going from `from` to `to` (the current one where it
+/// does not move).
+fn move_dir(from: Vec2, to: Vec2, current: Vec2) -> Vec2 {
+    [0, 1].map(|a| {
+        let step = to[a] - from[a];
+        if step.abs() >= SAME_STEP {
+            step.signum()
+        } else {
+            current[a]
+        }
+    })
 }

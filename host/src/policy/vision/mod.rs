@@ -8,7 +8,9 @@ mod cavity;
 mod michelson;
 mod model;
 mod relay;
-mod track;
+mod see;
+mod servo;
+mod sight;
 
 use async_trait::async_trait;
 
@@ -18,11 +20,11 @@ use cavity::CavityAgent;
 use michelson::MichelsonAgent;
 use relay::RelayAgent;
 
-/// The per-task agent.
+/// The per-task agent (boxed: the relay's carries two servos and a frame).
 enum Agent {
-    Michelson(MichelsonAgent),
-    Cavity(CavityAgent),
-    Relay(RelayAgent),
+    Michelson(Box<MichelsonAgent>),
+    Cavity(Box<CavityAgent>),
+    Relay(Box<RelayAgent>),
 }
 
 /// The image-only alignment policy.
@@ -33,9 +35,14 @@ pub struct VisionPolicy {
 impl VisionPolicy {
     pub fn new(brief: &TaskBrief) -> Self {
         let agent = match brief.task {
-            TaskKind::Michelson => Agent::Michelson(MichelsonAgent::new(&brief.limits.michelson)),
-            TaskKind::Cavity => Agent::Cavity(CavityAgent::new(&brief.limits.cavity)),
-            TaskKind::Relay => Agent::Relay(RelayAgent::new(&brief.limits.relay)),
+            TaskKind::Michelson => {
+                Agent::Michelson(Box::new(MichelsonAgent::new(&brief.limits.michelson)))
+            }
+            TaskKind::Cavity => Agent::Cavity(Box::new(CavityAgent::new(&brief.limits.cavity))),
+            TaskKind::Relay => Agent::Relay(Box::new(RelayAgent::new(
+                &brief.limits.relay,
+                &brief.geometry,
+            ))),
         };
         Self { agent }
     }

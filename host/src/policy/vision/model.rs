@@ -1,7 +1,8 @@
 //! The agent's model of one two-axis actuator: observations of where a feature was seen for
-//! which motor command, an affine motor-to-image map fitted to them by least squares, and
-//! the choice of the next probe (an axis not yet moved, or an expanding search when the
-//! feature has not been seen).
+//! which motor command, an affine motor-to-image map fitted to them by least squares, the
+//! motion each axis loses when it reverses (a dead band the controller does not
+//! compensate), and the choice of the next probe (an axis not yet moved, or an expanding
+//! search when the feature has not been seen).
 
 use std::ops::RangeInclusive;
 
@@ -109,10 +110,6 @@ fn rings(centre: Vec2, spacing: Vec2, multiples: RangeInclusive<i32>) -> Vec<Vec
         .collect()
 }
 
-/// A probe across a known direction keeps the feature's centre this far inside the
-/// image, px.
-const IN_VIEW_MARGIN_PX: f64 = 40.0;
-
 /// How far a feature at `from` can move either way along the unit `direction` and stay
 /// inside an image of size `view`.
 fn room(from: Vec2, direction: Vec2, view: Vec2) -> f64 {
@@ -133,19 +130,61 @@ fn room(from: Vec2, direction: Vec2, view: Vec2) -> f64 {
     exit(1.0).min(exit(-1.0)).max(0.0)
 }
 
-/// Commands closer than this count as the same probe, steps.
-const SAME_COMMAND: f64 = 100.0;
+/// Commands closer than this share of the probe length count as the same probe.
+const SAME_COMMAND_SHARE: f64 = 0.04;
 
 /// Commands closer than this are the very same command, steps.
 pub const SAME_STEP: f64 = 1.0;
 
+/// Lost motion is estimated once this many clean sightings were made ...
+const LOST_MOTION_MIN_SIGHTINGS: usize = 5;
+
+/// Gauss-Newton iterations of the lost-motion estimate (each refits the map), at most,
+/// until a step changes it by less than this, steps.
+const LOST_MOTION_ITERATIONS: usize = 60;
+const LOST_MOTION_SETTLED: f64 = 0.01;
+
+/// ... with at least this many after moves either way on the axis ...
+const LOST_MOTION_PER_SIDE: usize = 2;
+
+/// ... and kept only when it explains this share of the fit's residual, and exceeds its own
+/// standard error this many times.
+const LOST_MOTION_GAIN: f64 = 0.3;
+const LOST_MOTION_SIGNIFICANCE: f64 = 3.0;
+
+/// How a detected beam serves the model.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Sighting {
+    /// Its centre can be fitted to.
+    Clean(Vec2),
+    /// Roughly where it is (cut, merged, speckled).
+    Partial(Vec2),
+}
+
+/// A fit keeps at least this many sightings when it drops contradicted ones ...
+const ROBUST_MIN_POINTS: usize = 4;
+
+/// ... which miss the others' fit by more than this many position noises.
+const OUTLIER_NOISES: f64 = 4.0;
+
+/// One sighting of a feature: the command, where it showed, and the direction each axis
+/// had last moved in (+1, -1; 0 before its first move).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Sight {
+    pub command: Vec2,
+    pub image: Vec2,
+    pub dir: Vec2,
+    /// When it was made, counting every sighting of the tracker.
+    pub order: usize,
+}
+
 /// What the agent knows about one feature driven by one two-axis actuator.
 #[derive(Clone, Debug)]
 pub struct Tracker {
-    /// Commands where the feature was measured cleanly (whole, not clipped or overlapped).
-    pub clean: Vec<(Vec2, Vec2)>,
-    /// Commands where the feature showed only partly (clipped, overlapped): where it roughly was.
-    pub partial: Vec<(Vec2, Vec2)>,
+    /// Sightings where the feature was measured cleanly (whole, not clipped or overlapped).
+    pub clean: Vec<Sight>,
+    /// Sightings where it showed only partly (clipped, overlapped): where it roughly was.
+    pub partial: Vec<Sight>,
     /// Commands where the feature did not show.
     pub missing: Vec<Vec2>,
     /// Probe length per axis, steps.
@@ -154,6 +193,20 @@ pub struct Tracker {
     pub range: [Vec2; 2],
     /// Minimum spread of clean commands for a fit, steps.
     pub min_spread: f64,
+    /// The direction each axis last moved in.
+    pub dir: Vec2,
+    /// The directions before the last move.
+    previous_dir: Vec2,
+    /// Motion lost when an axis reverses (a dead band the controller does not compensate),
+    /// steps, as estimated from the sightings.
+    pub lost: Vec2,
+    /// The scatter of one measured position, px (set by the agent from what it measured).
+    pub noise: f64,
+    /// Sightings made so far (clean and partial), for their order.
+    made: usize,
+    /// The last command where the feature did not show, and how many sightings had been
+    /// made by then.
+    lost_at: Option<(Vec2, usize)>,
 }
 
 impl Tracker {
@@ -165,25 +218,234 @@ impl Tracker {
             probe,
             range,
             min_spread: probe[0].min(probe[1]) / 4.0,
+            dir: [0.0; 2],
+            previous_dir: [0.0; 2],
+            lost: [0.0; 2],
+            noise: 1.0,
+            made: 0,
+            lost_at: None,
         }
     }
 
-    /// The fitted model, once the clean observations span both axes.
+    /// Books a commanded move from `from` to `to`: the axes that moved set their direction.
+    pub fn moved(&mut self, from: Vec2, to: Vec2) {
+        self.previous_dir = self.dir;
+        for axis in 0..2 {
+            let step = to[axis] - from[axis];
+            if step.abs() >= SAME_STEP {
+                self.dir[axis] = step.signum();
+            }
+        }
+    }
+
+    /// Where the mount really sits for `command` reached moving in `dir`: behind the
+    /// command by half the lost motion (the convention puts the dead band's middle at the
+    /// command).
+    fn effective(&self, command: Vec2, dir: Vec2) -> Vec2 {
+        [
+            command[0] - self.lost[0] / 2.0 * dir[0],
+            command[1] - self.lost[1] / 2.0 * dir[1],
+        ]
+    }
+
+    fn points(&self) -> Vec<(Vec2, Vec2)> {
+        self.clean
+            .iter()
+            .map(|s| (self.effective(s.command, s.dir), s.image))
+            .collect()
+    }
+
+    /// The fitted model (on effective commands), once the clean sightings span both axes.
+    /// Sightings the others contradict (by more than a few times the position noise) are
+    /// dropped one by one, worst first, while more than a minimal fit remains: an early
+    /// sighting of a beam cut by the border must not bend the map for ever.
     pub fn model(&self) -> Option<Affine> {
-        Affine::fit(&self.clean, self.min_spread)
+        let mut points = self.points();
+        let mut model = Affine::fit(&points, self.min_spread)?;
+        while points.len() > ROBUST_MIN_POINTS {
+            let (worst, miss) = points
+                .iter()
+                .enumerate()
+                .map(|(i, (u, p))| (i, distance(model.predict(*u), *p)))
+                .max_by(|a, b| a.1.total_cmp(&b.1))?;
+            if miss <= OUTLIER_NOISES * self.noise {
+                break;
+            }
+            let mut fewer = points.clone();
+            fewer.remove(worst);
+            match Affine::fit(&fewer, self.min_spread) {
+                Some(refit) => {
+                    points = fewer;
+                    model = refit;
+                }
+                None => break,
+            }
+        }
+        Some(model)
+    }
+
+    /// The least-squares fit to every clean sighting (none dropped): what the lost motion
+    /// is estimated against, since a reversal's lost motion shows as a misfit.
+    fn plain_model(&self) -> Option<Affine> {
+        Affine::fit(&self.points(), self.min_spread)
     }
 
     /// The fitted model anchored at the latest clean sighting.
     pub fn local_model(&self) -> Option<Affine> {
         let model = self.model()?;
         Some(match self.clean.last() {
-            Some(&(command, image)) => model.anchored(command, image),
+            Some(s) => model.anchored(self.effective(s.command, s.dir), s.image),
             None => model,
         })
     }
 
+    /// Where the feature shows for `command` reached moving in `dir`.
+    pub fn predict(&self, command: Vec2, dir: Vec2) -> Option<Vec2> {
+        Some(self.local_model()?.predict(self.effective(command, dir)))
+    }
+
+    /// Where the feature shows now, at `command` with the axes' current directions.
+    pub fn predict_here(&self, command: Vec2) -> Option<Vec2> {
+        self.predict(command, self.dir)
+    }
+
+    /// The command that puts the feature at `point` when moving there from `from`, within
+    /// range: the lost motion is added on the side each axis approaches from.
+    pub fn command_for(&self, point: Vec2, from: Vec2) -> Option<Vec2> {
+        let target = self.local_model()?.solve(point)?;
+        let mut command = [0.0; 2];
+        for axis in 0..2 {
+            let half = self.lost[axis] / 2.0;
+            let forward = target[axis] + half;
+            let backward = target[axis] - half;
+            command[axis] = if forward > from[axis] + SAME_STEP && backward < from[axis] - SAME_STEP
+            {
+                // Both approaches reach it: the shorter move.
+                if (forward - from[axis]).abs() <= (from[axis] - backward).abs() {
+                    forward
+                } else {
+                    backward
+                }
+            } else if forward > from[axis] + SAME_STEP {
+                forward
+            } else if backward < from[axis] - SAME_STEP {
+                backward
+            } else {
+                // Within the dead band of where it is: moving would not help.
+                from[axis]
+            };
+        }
+        Some(self.clamp(command))
+    }
+
+    /// Re-estimates the lost motion of each axis from clean sightings made after moves in
+    /// both directions: Gauss-Newton on the affine fit's residuals, kept only when it
+    /// explains a real share of them.
+    pub fn estimate_lost_motion(&mut self) {
+        if self.clean.len() < LOST_MOTION_MIN_SIGHTINGS {
+            return;
+        }
+        let reversed = |axis: usize| {
+            let count = |sign: f64| {
+                self.clean
+                    .iter()
+                    .filter(|s| s.dir[axis] * sign > 0.0)
+                    .count()
+            };
+            count(1.0) >= LOST_MOTION_PER_SIDE && count(-1.0) >= LOST_MOTION_PER_SIDE
+        };
+        let axes: Vec<usize> = (0..2).filter(|&a| reversed(a)).collect();
+        if axes.is_empty() {
+            return;
+        }
+        let residual = |tracker: &Tracker| -> Option<f64> {
+            let model = tracker.plain_model()?;
+            Some(
+                tracker
+                    .points()
+                    .iter()
+                    .map(|(u, p)| distance(model.predict(*u), *p).powi(2))
+                    .sum::<f64>(),
+            )
+        };
+        // Sightings made before an axis first moved say nothing of which side of the dead
+        // band the mount was on.
+        let mut trial = self.clone();
+        trial
+            .clean
+            .retain(|s| axes.iter().all(|&a| s.dir[a] != 0.0));
+        if trial.clean.len() < LOST_MOTION_MIN_SIGHTINGS {
+            return;
+        }
+        let Some(start) = residual(&trial) else {
+            return;
+        };
+        let mut error = [0.0; 2];
+        for _ in 0..LOST_MOTION_ITERATIONS {
+            let Some(model) = trial.plain_model() else {
+                return;
+            };
+            // Residual r ≈ J δ with J[row][axis] = -gain[row][axis] dir[axis] / 2.
+            let mut normal = [[0.0; 2]; 2];
+            let mut rhs = [0.0; 2];
+            let mut sum_r2 = 0.0;
+            for s in &trial.clean {
+                let u = trial.effective(s.command, s.dir);
+                let predicted = model.predict(u);
+                for (row, (&seen, &expected)) in s.image.iter().zip(&predicted).enumerate() {
+                    let r = seen - expected;
+                    sum_r2 += r * r;
+                    let j: Vec2 = [0, 1].map(|a| -model.gain[row][a] * s.dir[a] / 2.0);
+                    for &a in &axes {
+                        rhs[a] += j[a] * r;
+                        for &b in &axes {
+                            normal[a][b] += j[a] * j[b];
+                        }
+                    }
+                }
+            }
+            let step = match axes.as_slice() {
+                [a] => {
+                    let mut step = [0.0; 2];
+                    step[*a] = rhs[*a] / normal[*a][*a].max(1e-12);
+                    step
+                }
+                _ => {
+                    let det = normal[0][0] * normal[1][1] - normal[0][1] * normal[1][0];
+                    if det.abs() < 1e-12 {
+                        return;
+                    }
+                    [
+                        (normal[1][1] * rhs[0] - normal[0][1] * rhs[1]) / det,
+                        (normal[0][0] * rhs[1] - normal[1][0] * rhs[0]) / det,
+                    ]
+                }
+            };
+            let dof = (2 * trial.clean.len())
+                .saturating_sub(6 + axes.len())
+                .max(1) as f64;
+            let variance = sum_r2 / dof;
+            for &a in &axes {
+                trial.lost[a] += step[a];
+                error[a] = (variance / normal[a][a].max(1e-12)).sqrt();
+            }
+            if step[0].hypot(step[1]) < LOST_MOTION_SETTLED {
+                break;
+            }
+        }
+        let Some(end) = residual(&trial) else {
+            return;
+        };
+        let significant = axes
+            .iter()
+            .all(|&a| (trial.lost[a] - self.lost[a]).abs() > LOST_MOTION_SIGNIFICANCE * error[a]);
+        if end < (1.0 - LOST_MOTION_GAIN) * start && significant {
+            self.lost = trial.lost;
+        }
+    }
+
     /// What the tracker believes, for the transcript: how many sightings of each kind, the
-    /// fitted response and where it puts the feature for `command`.
+    /// fitted response, the lost motion, and where it puts the feature for `command`.
     pub fn claims(&self, command: Vec2) -> serde_json::Value {
         let model = self.local_model();
         serde_json::json!({
@@ -193,31 +455,82 @@ impl Tracker {
                 "missing": self.missing.len(),
             },
             "response_px_per_step": model.map(|m| m.gain),
-            "predicted_px": model.map(|m| m.predict(command)),
+            "lost_motion_steps": self.lost,
+            "predicted_px": self.predict_here(command),
         })
     }
 
-    /// Records a clean observation, replacing an earlier one at the same command.
+    /// Records a clean sighting at `command`, replacing an earlier one at the same command
+    /// and direction.
     pub fn add_clean(&mut self, command: Vec2, image: Vec2) {
+        self.add_clean_with(command, image, self.dir);
+    }
+
+    fn add_clean_with(&mut self, command: Vec2, image: Vec2, dir: Vec2) {
         self.clean
-            .retain(|(u, _)| distance(*u, command) >= SAME_STEP);
-        self.clean.push((command, image));
+            .retain(|s| distance(s.command, command) >= SAME_STEP || s.dir != dir);
+        let order = self.next_order();
+        self.clean.push(Sight {
+            command,
+            image,
+            dir,
+            order,
+        });
+    }
+
+    fn add_partial_with(&mut self, command: Vec2, image: Vec2, dir: Vec2) {
+        let order = self.next_order();
+        self.partial.push(Sight {
+            command,
+            image,
+            dir,
+            order,
+        });
+    }
+
+    fn next_order(&mut self) -> usize {
+        self.made += 1;
+        self.made
     }
 
     pub fn add_partial(&mut self, command: Vec2, image: Vec2) {
-        self.partial.push((command, image));
+        self.add_partial_with(command, image, self.dir);
+    }
+
+    /// Files what was seen at the current `command` (or that nothing was).
+    pub fn file(&mut self, command: Vec2, seen: Option<Sighting>) {
+        match seen {
+            Some(Sighting::Clean(c)) => self.add_clean(command, c),
+            Some(Sighting::Partial(c)) => self.add_partial(command, c),
+            None => self.add_missing(command),
+        }
+    }
+
+    /// Files what was seen at `command` before the last move, with the directions then.
+    pub fn file_before_move(&mut self, command: Vec2, seen: Sighting) {
+        let dir = self.previous_dir;
+        match seen {
+            Sighting::Clean(c) => self.add_clean_with(command, c, dir),
+            Sighting::Partial(c) => self.add_partial_with(command, c, dir),
+        }
     }
 
     pub fn add_missing(&mut self, command: Vec2) {
+        self.lost_at = Some((command, self.made));
         self.missing.push(command);
+    }
+
+    /// Commands closer than this count as the same probe, steps.
+    fn same_command(&self) -> f64 {
+        (SAME_COMMAND_SHARE * self.probe[0].min(self.probe[1])).max(SAME_STEP)
     }
 
     /// Whether any observation (clean, partial or missing) was made within `within` steps
     /// of `command`.
     pub fn tried_within(&self, command: Vec2, within: f64) -> bool {
         let near = |u: &Vec2| distance(*u, command) < within;
-        self.clean.iter().any(|(u, _)| near(u))
-            || self.partial.iter().any(|(u, _)| near(u))
+        self.clean.iter().any(|s| near(&s.command))
+            || self.partial.iter().any(|s| near(&s.command))
             || self.missing.iter().any(near)
     }
 
@@ -240,11 +553,12 @@ impl Tracker {
     /// (a feature cut by the top or bottom border needs the axis that moves it vertically).
     fn next_probe_preferring(&self, start: Vec2, prefer: Option<usize>) -> Vec2 {
         let [px, py] = self.probe;
-        let candidates: Vec<Vec2> = if let Some(&(base, _)) = self.clean.last() {
+        let candidates: Vec<Vec2> = if let Some(last) = self.clean.last() {
+            let base = last.command;
             let spans = |axis: usize| {
                 self.clean
                     .iter()
-                    .any(|(u, _)| (u[axis] - base[axis]).abs() >= self.min_spread)
+                    .any(|s| (s.command[axis] - base[axis]).abs() >= self.min_spread)
             };
             let mut dirs = Vec::new();
             for axis in [0, 1] {
@@ -266,7 +580,8 @@ impl Tracker {
                     .map(|d| [base[0] + 2.0 * d[0], base[1] + 2.0 * d[1]]),
             );
             out
-        } else if let Some(&(base, _)) = self.partial.last() {
+        } else if let Some(last) = self.partial.last() {
+            let base = last.command;
             let mut around = rings(base, self.probe, 1..=1);
             if let Some(axis) = prefer {
                 around.sort_by_key(|c| usize::from(c[1 - axis] != base[1 - axis]));
@@ -276,20 +591,19 @@ impl Tracker {
             rings(start, [2.0 * px, 2.0 * py], 1..=6)
         };
         // When all of those were tried, a finer search around the start.
+        let same = self.same_command();
         candidates
             .into_iter()
             .chain(rings(start, self.probe, 1..=12))
             .map(|c| self.clamp(c))
-            .find(|c| !self.tried_within(*c, SAME_COMMAND))
+            .find(|c| !self.tried_within(*c, same))
             .unwrap_or_else(|| self.clamp([start[0] + px, start[1] + py]))
     }
-}
 
-impl Tracker {
-    /// Sets the probe length per axis (and with it the spread a fit needs).
+    /// Sets the probe length per axis (the spread a fit needs stays as set: it is about
+    /// how well a measured centre pins a response, not about the probes' length).
     pub fn set_probe(&mut self, probe: Vec2) {
         self.probe = probe;
-        self.min_spread = probe[0].min(probe[1]) / 4.0;
     }
 
     /// Whether anything was seen or looked for yet.
@@ -298,28 +612,76 @@ impl Tracker {
     }
 
     /// The next command to learn the response while bringing the feature towards the
-    /// centre of an image of size `view`. From a fresh start, one probe length along the
-    /// first axis (the feature is usually in view at the start). Once two clean sightings
-    /// span one direction, the move along it that they predict puts the feature nearest the
-    /// centre, combined with a probe across it, short enough that the feature stays in view
-    /// whichever way it goes (at the response measured along; either sign, then a third for
-    /// a feature that left the image anyway): the probe makes progress and is seen.
-    /// Otherwise [`Self::next_probe`], trying axis `prefer` first around a partial sighting.
-    pub fn next_probe_towards(&self, start: Vec2, view: Vec2, prefer: Option<usize>) -> Vec2 {
+    /// centre of an image of size `view`, keeping it `margin` px inside. From a fresh
+    /// start, one probe length along the first axis (the feature is usually in view at the
+    /// start). Once two clean sightings span one direction, the move along it that they
+    /// predict puts the feature nearest the centre, combined with a probe across it, short
+    /// enough that the feature stays in view whichever way it goes (at the response
+    /// measured along; either sign, then a third for a feature that left the image anyway):
+    /// the probe makes progress and is seen. Otherwise [`Self::next_probe`], trying axis
+    /// `prefer` first around a partial sighting.
+    pub fn next_probe_towards(
+        &self,
+        start: Vec2,
+        view: Vec2,
+        margin: f64,
+        prefer: Option<usize>,
+    ) -> Vec2 {
         if self.is_fresh() {
             return self.clamp([start[0] + self.probe[0], start[1]]);
         }
-        self.probe_across(view)
+        self.probe_across(view, margin)
+            .or_else(|| self.back_the_other_way())
             .unwrap_or_else(|| self.next_probe_preferring(start, prefer))
     }
 
-    fn probe_across(&self, view: Vec2) -> Option<Vec2> {
-        let target = [view[0] / 2.0, view[1] / 2.0];
-        let &(base, seen) = self.clean.last()?;
-        let &(other, other_seen) = self
+    /// When the last move lost a feature that showed just before, the same move the other
+    /// way from where it showed: it left the image that way, so the centre lies the other.
+    fn back_the_other_way(&self) -> Option<Vec2> {
+        let (lost, made) = self.lost_at?;
+        let last = self
             .clean
             .iter()
-            .max_by(|a, b| distance(a.0, base).total_cmp(&distance(b.0, base)))?;
+            .chain(&self.partial)
+            .max_by_key(|s| s.order)?;
+        if last.order != made {
+            return None;
+        }
+        let back = self.clamp([
+            2.0 * last.command[0] - lost[0],
+            2.0 * last.command[1] - lost[1],
+        ]);
+        (!self.tried_within(back, self.same_command())).then_some(back)
+    }
+
+    /// The sightings a probe across is planned from: the clean ones when two of them span
+    /// a direction, else every sighting (a clipped beam's centroid moves less than the beam,
+    /// but the right way: steering by it overshoots towards the centre, into view).
+    fn steering_sightings(&self) -> Vec<Sight> {
+        let spans = |sights: &[Sight]| {
+            sights.last().is_some_and(|last| {
+                sights
+                    .iter()
+                    .any(|s| distance(s.command, last.command) >= self.min_spread)
+            })
+        };
+        if spans(&self.clean) {
+            return self.clean.clone();
+        }
+        let mut all: Vec<Sight> = self.clean.iter().chain(&self.partial).copied().collect();
+        all.sort_by_key(|s| s.order);
+        all
+    }
+
+    fn probe_across(&self, view: Vec2, margin: f64) -> Option<Vec2> {
+        let target = [view[0] / 2.0, view[1] / 2.0];
+        let sights = self.steering_sightings();
+        let last = sights.last()?;
+        let (base, seen) = (last.command, last.image);
+        let far = sights
+            .iter()
+            .max_by(|a, b| distance(a.command, base).total_cmp(&distance(b.command, base)))?;
+        let (other, other_seen) = (far.command, far.image);
         let span = distance(other, base);
         if span < self.min_spread {
             return None;
@@ -351,8 +713,9 @@ impl Tracker {
         ];
         let size = strength.sqrt();
         let sideways = [-response[1] / size, response[0] / size];
-        let room = room(landing, sideways, view) - IN_VIEW_MARGIN_PX;
+        let room = room(landing, sideways, view) - margin;
         let full = (room / (size * probe)).clamp(1.0 / 3.0, 1.0);
+        let same = self.same_command();
         [full, -full, full / 3.0, -full / 3.0]
             .into_iter()
             .map(|share| {
@@ -364,7 +727,7 @@ impl Tracker {
             })
             .find(|c| {
                 let spread = (c[0] - base[0]) * across[0] + (c[1] - base[1]) * across[1];
-                spread.abs() >= self.min_spread && !self.tried_within(*c, SAME_COMMAND)
+                spread.abs() >= self.min_spread && !self.tried_within(*c, same)
             })
     }
 }
@@ -407,16 +770,74 @@ mod tests {
     fn probes_across_while_centring_along_a_known_direction() {
         let mut tracker = Tracker::new([1500.0, 1500.0], [[-8000.0, 8000.0], [-6000.0, 6000.0]]);
         assert_eq!(
-            tracker.next_probe_towards([0.0, 0.0], [1920.0, 1080.0], None),
+            tracker.next_probe_towards([0.0, 0.0], [1920.0, 1080.0], 40.0, None),
             [1500.0, 0.0]
         );
         // 0.2 px per step along the first axis: 500 px short of the target is 2500 steps.
         tracker.add_clean([0.0, 0.0], [160.0, 540.0]);
         tracker.add_clean([1500.0, 0.0], [460.0, 540.0]);
-        let next = tracker.next_probe_towards([0.0, 0.0], [1920.0, 1080.0], None);
+        let next = tracker.next_probe_towards([0.0, 0.0], [1920.0, 1080.0], 40.0, None);
         assert!(distance(next, [4000.0, 1500.0]) < 1e-6, "{next:?}");
         tracker.add_missing(next);
-        let next = tracker.next_probe_towards([0.0, 0.0], [1920.0, 1080.0], None);
+        let next = tracker.next_probe_towards([0.0, 0.0], [1920.0, 1080.0], 40.0, None);
         assert!(distance(next, [4000.0, -1500.0]) < 1e-6, "{next:?}");
+    }
+
+    #[test]
+    fn lost_motion_is_measured_from_reversals_and_compensated() {
+        let truth = Affine {
+            offset: [900.0, 500.0],
+            gain: [[0.17, 0.012], [-0.01, -0.16]],
+        };
+        // The mount loses 300 steps on each axis when it reverses: the load sits 300 steps
+        // ahead of the command after a move backwards.
+        let load = |command: Vec2, dir: Vec2| {
+            [0, 1].map(|a| command[a] + if dir[a] < 0.0 { 300.0 } else { 0.0 })
+        };
+        let mut tracker = Tracker::new([1500.0, 1500.0], [[-8000.0, 8000.0], [-6000.0, 6000.0]]);
+        let mut at = [0.0, 0.0];
+        for next in [
+            [1500.0, 0.0],
+            [1500.0, 1500.0],
+            [0.0, 1500.0],
+            [0.0, 0.0],
+            [2500.0, -1000.0],
+            [-1000.0, 800.0],
+            [600.0, 300.0],
+        ] {
+            tracker.moved(at, next);
+            at = next;
+            tracker.add_clean(next, truth.predict(load(next, tracker.dir)));
+        }
+        assert_eq!(tracker.lost, [0.0, 0.0]);
+        tracker.estimate_lost_motion();
+        assert!(
+            (tracker.lost[0] - 300.0).abs() < 1.0 && (tracker.lost[1] - 300.0).abs() < 1.0,
+            "{:?}",
+            tracker.lost
+        );
+        // A command reached backwards lands where it is meant to.
+        let target = [960.0, 540.0];
+        let command = tracker.command_for(target, at).unwrap();
+        let dir = [0, 1].map(|a| (command[a] - at[a]).signum());
+        assert!(distance(truth.predict(load(command, dir)), target) < 0.5);
+        // Without reversals there is nothing to measure.
+        let mut forward = Tracker::new([1500.0, 1500.0], [[-8000.0, 8000.0], [-6000.0, 6000.0]]);
+        for (i, next) in [
+            [500.0, 0.0],
+            [1000.0, 500.0],
+            [1500.0, 900.0],
+            [2200.0, 1400.0],
+            [2600.0, 2000.0],
+        ]
+        .into_iter()
+        .enumerate()
+        {
+            forward.moved(if i == 0 { [0.0; 2] } else { next }, next);
+            forward.moved([0.0; 2], next);
+            forward.add_clean(next, truth.predict(load(next, forward.dir)));
+        }
+        forward.estimate_lost_motion();
+        assert_eq!(forward.lost, [0.0, 0.0]);
     }
 }

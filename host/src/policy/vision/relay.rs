@@ -1,40 +1,58 @@
-//! The relay agent: aligns the mirrors in order along the beam. For mirror m it measures at
-//! the near station of m's outgoing segment, where a tilt moves the spot little, learns
-//! the mirror's response there by probing (searching outwards when the spot is off the
-//! sensor or speckled), centres the spot, then moves to the far station, where the same
-//! tilt moves the spot about ten times as far, and centres it there with the scaled
-//! response, refined by Broyden updates. Light lost at the far station sends the camera
-//! back to the near station. At C8, with a centred localised spot, it declares done.
+//! The relay agent: aligns the mirrors in order along the beam. For mirror m it works at
+//! the near station of m's outgoing segment first, where a tilt moves the spot little:
+//! it finds the spot (searching outwards when it is off the sensor), learns the mirror's
+//! 2 x 2 response there from two probes (sized from the response measured so far: a
+//! cautious first one, then whatever moves the spot a useful share of the image) and
+//! centres it; then it moves to the far station, where the same tilt moves the spot
+//! farther by the ratio of the stations' distances (from the brief's bench geometry; when
+//! the bench did not give it, the far response is measured there), and centres it with
+//! that response, refined by Broyden updates. Features that stay put while the mirror
+//! tilts are stray light, remembered per station. Light lost at the far station sends the
+//! camera back to the near station. At C8, with a centred compact spot, it declares done.
 
 use optalign_optics::{Frame, Station};
 
-use super::model::{Affine, Tracker, Vec2, distance};
-use crate::imaging::{BeamSpot, find_beams};
-use crate::task::{RelayAction, RelayLimits};
+use super::model::{Tracker, Vec2, distance};
+use super::see::{View, motion, stationary_pairs};
+use super::servo::{Servo, Spot};
+use crate::imaging::Beam;
+use crate::task::{BenchGeometry, RelayAction, RelayLimits};
 
-/// Probe length per tilt axis at the near station, steps (about 66 px at C1).
-const PROBE: Vec2 = [2000.0, 2000.0];
+/// The first probe tilts an axis by this share of the cumulative range (both sides).
+const CAUTIOUS_SHARE: f64 = 1.0 / 32.0;
 
-/// Probe length for learning the near response once a spot shows, steps (about 70 px at C1).
-const NEAR_PROBE: f64 = 2500.0;
+/// A probe aims to move the spot this share of the image's shorter side (at the bench's
+/// nominal response, or at the previous mirror's measured one) ...
+const PROBE_VIEW_SHARE: f64 = 0.15;
 
-/// Longest single tilt at the near station, steps (about 200 px at C1).
-const NEAR_REACH: f64 = 6000.0;
+/// ... and probes and steps stay within these shares of the cumulative range.
+const PROBE_SHARES: Vec2 = [1.0 / 512.0, 1.0 / 4.0];
 
-/// Expected spot travel at 1 mm from a mirror, px per step (twice 0.027 rad per 4096 steps,
-/// 10 um pixels, less for the vertical axis of a 45 degree mirror): a floor for probe
-/// responses shrunk by clipping.
-const PX_PER_STEP_MM: f64 = 0.0009;
+/// While the spot has not been seen at the near station, the search grows by this factor.
+const SEARCH_GROWTH: f64 = 1.5;
 
-/// Distance of each station from the mirror before it, mm: near stations 25 mm after their
-/// mirror, far ones just before the next mirror (C8 well along the output).
-const STATION_MM: [f64; 8] = [25.0, 254.4, 25.0, 178.2, 25.0, 254.4, 25.0, 300.0];
+/// A spot at most this bright at the sensor's edge (share of its peak) is whole enough to
+/// steer by: its centroid is pulled in by a few pixels, which the next image corrects.
+const WHOLE_ENOUGH_EDGE: f64 = 0.3;
 
-/// A spot this close to the image centre is centred, px.
-const CENTRED_PX: f64 = 10.0;
+/// Upstream far stations pass when the spot is within this share of the task's centring
+/// tolerance; C8 (done) within the tighter share.
+const PASS_SHARE: f64 = 0.6;
+const DONE_SHARE: f64 = 0.4;
 
-/// Upstream far stations only need the beam well inside the next mirror, px.
-const PASS_PX: f64 = 20.0;
+/// The near station is centred within this share of the task's centring tolerance (the
+/// far station magnifies what is left by the lever ratio).
+const NEAR_CENTRED_SHARE: f64 = 0.1;
+
+/// Steps at a far station before going back to the near station to start again.
+const MAX_FAR_STEPS: usize = 10;
+
+/// A feature that moved with a tilt is the beam only with at least this share of the
+/// strongest feature's light.
+const MOVED_SHARE: f64 = 0.3;
+
+/// A stationary feature is remembered within this many beam radii.
+const STRAY_RADII: f64 = 0.5;
 
 /// What the agent is doing for the current mirror.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -48,48 +66,65 @@ enum Phase {
 /// The relay state machine.
 pub struct RelayAgent {
     limits: RelayLimits,
+    /// Each station's distance from the mirror that starts its segment, when known.
+    distances: Option<[f64; 8]>,
+    /// The spot's expected travel per step at 1 mm from the mirror, px, when the bench's
+    /// tilt per step and pixel pitch are known: sizes the first probes.
+    px_per_step_mm: Option<f64>,
     cumulative: [i32; 8],
     station: usize,
     mirror: usize,
     phase: Phase,
-    near: Tracker,
+    /// The search for a spot never seen at the near station.
+    search: Tracker,
     /// The current mirror's tilt when its alignment began (the centre of any search).
     near_start: Vec2,
-    /// Near-station probes of the current mirror: tilt and spot centroid (clean or not).
-    near_probes: Vec<(Vec2, Vec2, bool)>,
-    /// The near station's response, px per step, once probed.
-    near_gain: Option<[[f64; 2]; 2]>,
-    /// The near-station spot before the last tilt and the tilt, for the Broyden update.
-    near_last: Option<(Vec2, Vec2)>,
-    /// The last tilt at which the near station showed the spot.
-    near_seen: Option<Vec2>,
-    /// The far station's response, px per step.
-    far_gain: Option<[[f64; 2]; 2]>,
-    /// The far-station spot before the last tilt and the tilt, for the Broyden update.
-    far_last: Option<(Vec2, Vec2)>,
+    near: Servo,
+    far: Servo,
+    far_steps: usize,
     far_dark: usize,
+    /// The previous mirror's near response, px per step: sizes the next mirror's probes.
+    known_response: Option<f64>,
+    /// The last frame, the station it was taken at and the tilts then.
+    previous: Option<(View, usize, [i32; 8])>,
+    /// Stationary features seen per station (stray light), px.
+    stray: Vec<(usize, Vec2)>,
+    /// Radius of a whole spot, px, once seen.
+    radius: Option<f64>,
     last: Option<RelayAction>,
 }
 
 impl RelayAgent {
-    pub fn new(limits: &RelayLimits) -> Self {
-        Self {
+    pub fn new(limits: &RelayLimits, geometry: &BenchGeometry) -> Self {
+        let mut agent = Self {
             limits: limits.clone(),
+            distances: geometry.station_distances_mm,
+            px_per_step_mm: geometry
+                .tilt_rad_per_step
+                .zip(geometry.pixel_pitch_mm())
+                .map(|(tilt, pitch)| {
+                    // The beam turns by twice the tilt; a vertical tilt of a 45 degree mirror
+                    // by 2 θ cos 45°: the smaller of the two.
+                    2.0 * tilt * std::f64::consts::FRAC_1_SQRT_2 / pitch[0].max(pitch[1])
+                }),
             cumulative: [0; 8],
             station: 7,
             mirror: 0,
             phase: Phase::Near,
-            near: new_tracker(limits),
+            search: new_tracker(limits),
             near_start: [0.0; 2],
-            near_probes: Vec::new(),
-            near_gain: None,
-            near_last: None,
-            near_seen: None,
-            far_gain: None,
-            far_last: None,
+            near: Servo::new(1.0, [1.0, 1.0], None),
+            far: Servo::new(1.0, [1.0, 1.0], None),
+            far_steps: 0,
             far_dark: 0,
+            known_response: None,
+            previous: None,
+            stray: Vec::new(),
+            radius: None,
             last: None,
-        }
+        };
+        agent.near = agent.new_servo(None);
+        agent
     }
 
     fn tilt_of(&self, m: usize) -> Vec2 {
@@ -104,11 +139,13 @@ impl RelayAgent {
         if !rejected {
             self.apply_last();
         }
-        let spot = best_spot(frame);
-        let centre = [
-            f64::from(frame.width()) / 2.0,
-            f64::from(frame.height()) / 2.0,
-        ];
+        let view = View::new(frame);
+        let spot = self.find_spot(&view);
+        self.previous = Some((view, self.station, self.cumulative));
+        let (size, centre) = {
+            let v = &self.previous.as_ref().expect("just set").0;
+            (v.size(), v.centre())
+        };
         let near_station = 2 * self.mirror;
         let far_station = near_station + 1;
         if remaining <= 1 {
@@ -126,159 +163,206 @@ impl RelayAgent {
                 if self.station != near_station {
                     return self.act(measure(near_station));
                 }
-                self.near_phase(spot, centre, near_station)
+                self.near_phase(spot, centre, size)
             }
             Phase::Far => {
                 if self.station != far_station {
                     return self.act(measure(far_station));
                 }
-                let gain = self.far_gain.unwrap_or([[1.0, 0.0], [0.0, 1.0]]);
-                let Some(s) = spot else {
-                    return self.far_lost(gain, centre);
-                };
-                let gain = broyden(gain, self.far_last, s.centre);
-                self.far_gain = Some(gain);
-                let tolerance = if self.mirror == 3 {
-                    CENTRED_PX
-                } else {
-                    PASS_PX
-                };
-                if s.localised && !s.clipped && distance(s.centre, centre) < tolerance {
-                    if self.mirror == 3 {
-                        return self.act(RelayAction::Done);
-                    }
-                    self.mirror += 1;
-                    self.phase = Phase::Near;
-                    self.near = new_tracker(&self.limits);
-                    self.near_start = self.tilt_of(self.mirror);
-                    self.near_probes.clear();
-                    self.near_gain = None;
-                    self.near_last = None;
-                    self.near_seen = None;
-                    return self.act(measure(2 * self.mirror));
-                }
-                // Speckle or a clipped spot: its centroid points the way; step part-way.
-                let damping = if s.localised && !s.clipped { 1.0 } else { 0.6 };
-                let model = Affine {
-                    offset: s.centre,
-                    gain,
-                };
-                let delta = model.solve(centre).unwrap_or([0.0; 2]).map(|d| d * damping);
-                self.far_last = Some((s.centre, delta));
-                let u = self.tilt_of(self.mirror);
-                self.tilt_to([u[0] + delta[0], u[1] + delta[1]])
+                self.far_phase(spot, centre, size)
             }
         }
     }
 
-    /// At the near station: search while the spot has never shown; once it shows, probe
-    /// each axis once (clipped centroids give the direction, the lever arm a floor on the
-    /// size), then Newton steps to the centre refined by Broyden updates on clean spots.
-    /// When the spot is centred and clean, predict the far response and go there.
-    fn near_phase(
-        &mut self,
-        spot: Option<BeamSpot>,
-        centre: Vec2,
-        near_station: usize,
-    ) -> RelayAction {
-        let u = self.tilt_of(self.mirror);
-        let Some(s) = spot else {
-            self.near_last = None;
-            if let Some(seen) = self.near_seen {
-                // Lost after a move: go back half-way.
-                return self.tilt_to([(u[0] + seen[0]) / 2.0, (u[1] + seen[1]) / 2.0]);
-            }
-            self.near.add_missing(u);
-            let probe = self.near.next_probe(self.near_start);
-            return self.tilt_to(probe);
+    /// The beam's spot in `view`: features known to stay put at this station are stray
+    /// light; after a tilt at the same station, what moved is the beam (what stayed is
+    /// remembered as stray); otherwise the strongest remaining feature.
+    fn find_spot(&mut self, view: &View) -> Option<Beam> {
+        let radius = self
+            .radius
+            .unwrap_or(0.05 * view.size()[0].min(view.size()[1]));
+        let candidates: Vec<Beam> = view
+            .beams
+            .iter()
+            .filter(|b| {
+                !self.stray.iter().any(|(s, p)| {
+                    *s == self.station
+                        && distance(*p, b.centre) < STRAY_RADII * radius.max(b.size())
+                })
+            })
+            .copied()
+            .collect();
+        let Some((before, station, tilts)) = &self.previous else {
+            return strongest(&candidates);
         };
-        self.near_seen = Some(u);
-        let clean = s.localised && !s.clipped;
-        let Some(gain) = self.near_gain else {
-            self.near_probes.push((u, s.centre, clean));
-            let base = self.near_probes[0].0;
-            let bound = f64::from(self.limits.max_cumulative);
-            let along = |axis: usize| {
-                let mut t = base;
-                t[axis] += if base[axis] + NEAR_PROBE <= bound {
-                    NEAR_PROBE
-                } else {
-                    -NEAR_PROBE
-                };
-                t
-            };
-            if self.near_probes.len() < 3 {
-                return self.tilt_to(along(self.near_probes.len() - 1));
-            }
-            let floor = PX_PER_STEP_MM * STATION_MM[near_station];
-            let (u0, p0, c0) = self.near_probes[0];
-            let mut gain = [[0.0; 2]; 2];
-            for axis in [0, 1] {
-                let (ua, pa, ca) = self.near_probes[axis + 1];
-                let du = ua[axis] - u0[axis];
-                let col = [(pa[0] - p0[0]) / du, (pa[1] - p0[1]) / du];
-                if c0 && ca {
-                    gain[0][axis] = col[0];
-                    gain[1][axis] = col[1];
-                } else {
-                    // A clipped centroid shifts unreliably: take the sign along the image axis
-                    // this tilt axis mainly drives (vertical tilt moves y, horizontal x), the
-                    // size from the lever arm.
-                    let row = 1 - axis;
-                    gain[row][axis] = floor.max(col[row].abs()).copysign(col[row]);
+        if *station != self.station {
+            return strongest(&candidates);
+        }
+        let steady = 0.1 * radius;
+        let tilted = *tilts != self.cumulative;
+        if tilted {
+            let moved = motion(before, view, steady, None, None);
+            // A short move shows only as a change next to the spot, not as the spot: the
+            // spot itself is then the strongest feature, as when nothing moved. A faint
+            // change far from the light (speckle shifting) is not the beam either.
+            let strongest_light = strongest(&candidates).map_or(0.0, |b| b.signal);
+            if let Some(seen) = moved
+                .to
+                .filter(|seen| seen.whole && seen.beam.signal >= MOVED_SHARE * strongest_light)
+            {
+                // Something moved with the tilt: what stayed is stray light.
+                for (i, _) in stationary_pairs(&before.beams, &view.beams, steady) {
+                    let p = before.beams[i].centre;
+                    if !self
+                        .stray
+                        .iter()
+                        .any(|(s, q)| *s == self.station && distance(*q, p) < STRAY_RADII * radius)
+                    {
+                        self.stray.push((self.station, p));
+                    }
                 }
+                return Some(seen.beam);
             }
-            self.near_gain = Some(gain);
-            return self.near_step(gain, s.centre, centre);
+        }
+        strongest(&candidates)
+    }
+
+    /// The task's centring tolerance, px.
+    fn tolerance(&self) -> f64 {
+        self.limits.centred_tolerance_px
+    }
+
+    /// A servo for the current mirror, with a known response (the far station's, scaled
+    /// from the near one) or probes sized for a useful first move: at the bench's nominal
+    /// response, else at the previous mirror's measured one, else a cautious share of the
+    /// range.
+    fn new_servo(&self, gain: Option<[[f64; 2]; 2]>) -> Servo {
+        let range = 2.0 * f64::from(self.limits.max_cumulative);
+        let bounds = PROBE_SHARES.map(|share| share * range);
+        let side = self
+            .previous
+            .as_ref()
+            .map_or(480.0, |(view, _, _)| view.size()[0].min(view.size()[1]));
+        let nominal = self
+            .px_per_step_mm
+            .zip(self.distances)
+            .map(|(r, d)| r * d[2 * self.mirror]);
+        let probe = match nominal.or(self.known_response) {
+            Some(response) => PROBE_VIEW_SHARE * side / response,
+            None => CAUTIOUS_SHARE * range,
         };
-        let gain = if clean {
-            broyden(gain, self.near_last, s.centre)
-        } else {
-            flip_wrong_signs(gain, self.near_last, s.centre)
-        };
-        self.near_gain = Some(gain);
-        if clean && distance(s.centre, centre) < CENTRED_PX {
-            let ratio = STATION_MM[near_station + 1] / STATION_MM[near_station];
-            self.far_gain = Some(gain.map(|row| row.map(|g| g * ratio)));
-            self.far_last = None;
+        Servo::new(probe, bounds, gain)
+    }
+
+    /// Where the spot is: its centroid, and whether it is whole enough to steer by (cut by
+    /// the sensor's edge, its centroid only points the way).
+    fn estimate(&self, s: &Beam) -> Spot {
+        Spot {
+            at: s.centre,
+            whole: s.edge_level < WHOLE_ENOUGH_EDGE,
+            signal: s.signal,
+        }
+    }
+
+    /// At the near station: the servo drives the spot to the centre (searching outwards
+    /// while it has never shown); once it is centred and whole, the far station's response
+    /// is the near one scaled by the stations' distances, and the camera goes there.
+    fn near_phase(&mut self, spot: Option<Beam>, centre: Vec2, size: Vec2) -> RelayAction {
+        let u = self.tilt_of(self.mirror);
+        let side = size[0].min(size[1]);
+        let seen = spot.map(|s| self.estimate(&s));
+        if let Some(s) = spot.filter(|s| !s.clipped) {
+            self.radius = Some(s.size());
+        }
+        self.near.observe(u, seen, centre, side);
+        let near_station = 2 * self.mirror;
+        if let Some(best) = self.near.best()
+            && best.spot.whole
+            && distance(best.spot.at, centre) < NEAR_CENTRED_SHARE * self.tolerance()
+            && best.tilt == u
+        {
+            let gain = self.near.gain();
+            if let Some(g) = gain {
+                self.known_response = Some(g[0][0].hypot(g[1][0]).max(g[0][1].hypot(g[1][1])));
+            }
+            let far_gain = gain.zip(self.distances).map(|(g, d)| {
+                let ratio = d[near_station + 1] / d[near_station];
+                g.map(|row| row.map(|v| v * ratio))
+            });
+            self.far = self.new_servo(far_gain);
+            self.far_steps = 0;
             self.far_dark = 0;
             self.phase = Phase::Far;
             return self.act(measure(near_station + 1));
         }
-        self.near_step(gain, s.centre, centre)
+        if let Some(next) = self.near.next(centre) {
+            return self.tilt_to(next);
+        }
+        // Never seen here: search outwards around the start, wider each ring.
+        self.search.add_missing(u);
+        if self.search.missing.len() > 1 {
+            let probe = self.search.probe.map(|p| p * SEARCH_GROWTH);
+            self.search.set_probe(probe);
+        }
+        let next = self.search.next_probe(self.near_start);
+        self.tilt_to(next)
     }
 
-    /// A Newton step at the near station from the spot at `from` to `centre`.
-    fn near_step(&mut self, gain: [[f64; 2]; 2], from: Vec2, centre: Vec2) -> RelayAction {
-        let model = Affine { offset: from, gain };
-        let delta = model.solve(centre).unwrap_or([0.0; 2]);
-        let size = delta[0].hypot(delta[1]);
-        let delta = delta.map(|d| d * (NEAR_REACH / size.max(1.0)).min(1.0));
-        self.near_last = Some((from, delta));
+    /// At the far station: the servo drives the spot to the centre with the response scaled
+    /// from the near station (or probed here, without the bench's distances). Dark: back to
+    /// the near station once, then the servo's own search from the best tilt.
+    fn far_phase(&mut self, spot: Option<Beam>, centre: Vec2, size: Vec2) -> RelayAction {
         let u = self.tilt_of(self.mirror);
-        self.tilt_to([u[0] + delta[0], u[1] + delta[1]])
-    }
-
-    /// Far station dark: back to the near station once, then a small search around.
-    fn far_lost(&mut self, gain: [[f64; 2]; 2], centre: Vec2) -> RelayAction {
-        self.far_dark += 1;
-        self.far_last = None;
-        if self.far_dark == 1 {
-            self.phase = Phase::Near;
+        let side = size[0].min(size[1]);
+        let seen = spot.map(|s| self.estimate(&s));
+        self.far.observe(u, seen, centre, side);
+        let tolerance = if self.mirror == 3 {
+            DONE_SHARE * self.tolerance()
+        } else {
+            PASS_SHARE * self.tolerance()
+        };
+        // At C8 the spot must also be compact (a speckle cloud is no aligned beam).
+        let compact = spot.is_some_and(|s| s.localised) || self.mirror < 3;
+        if let Some(s) = seen
+            && s.whole
+            && compact
+            && distance(s.at, centre) < tolerance
+        {
+            if self.mirror == 3 {
+                return self.act(RelayAction::Done);
+            }
+            self.next_mirror();
             return self.act(measure(2 * self.mirror));
         }
-        let ring = [[1.0, 0.0], [-1.0, 0.0], [0.0, 1.0], [0.0, -1.0]];
-        let d = ring[(self.far_dark - 2) % 4];
-        let reach = 200.0 * (1 + (self.far_dark - 2) / 4) as f64;
-        let model = Affine {
-            offset: centre,
-            gain,
-        };
-        let step = model
-            .solve([centre[0] + d[0] * reach, centre[1] + d[1] * reach])
-            .unwrap_or([0.0; 2]);
-        let u = self.tilt_of(self.mirror);
-        self.tilt_to([u[0] + step[0], u[1] + step[1]])
+        self.far_steps += 1;
+        if self.far.best().is_none() {
+            self.far_dark += 1;
+            if self.far_dark == 1 || self.far_steps > MAX_FAR_STEPS {
+                self.phase = Phase::Near;
+                self.near = self.new_servo(None);
+                return self.act(measure(2 * self.mirror));
+            }
+        }
+        if self.far_steps > MAX_FAR_STEPS {
+            self.phase = Phase::Near;
+            self.near = self.new_servo(None);
+            return self.act(measure(2 * self.mirror));
+        }
+        match self.far.next(centre) {
+            Some(next) => self.tilt_to(next),
+            None => {
+                self.phase = Phase::Near;
+                self.act(measure(2 * self.mirror))
+            }
+        }
+    }
+
+    fn next_mirror(&mut self) {
+        self.mirror += 1;
+        self.phase = Phase::Near;
+        self.search = new_tracker(&self.limits);
+        self.near_start = self.tilt_of(self.mirror);
+        self.near = self.new_servo(None);
     }
 
     /// Tilts the current mirror to cumulative `target` (vertical, horizontal), within bounds.
@@ -322,7 +406,8 @@ impl RelayAgent {
 
 fn new_tracker(limits: &RelayLimits) -> Tracker {
     let bound = f64::from(limits.max_cumulative);
-    Tracker::new(PROBE, [[-bound, bound], [-bound, bound]])
+    let probe = CAUTIOUS_SHARE * 2.0 * bound;
+    Tracker::new([probe, probe], [[-bound, bound], [-bound, bound]])
 }
 
 fn measure(station: usize) -> RelayAction {
@@ -331,46 +416,9 @@ fn measure(station: usize) -> RelayAction {
     }
 }
 
-/// The strongest region, if any.
-fn best_spot(frame: &Frame) -> Option<BeamSpot> {
-    find_beams(frame).into_iter().next()
-}
-
-/// Updates a response from the last tilt `last` (spot before, tilt) and the spot it produced.
-fn broyden(gain: [[f64; 2]; 2], last: Option<(Vec2, Vec2)>, now: Vec2) -> [[f64; 2]; 2] {
-    let Some((before, du)) = last else {
-        return gain;
-    };
-    let norm = du[0] * du[0] + du[1] * du[1];
-    if norm < 1.0 {
-        return gain;
-    }
-    let dp = [now[0] - before[0], now[1] - before[1]];
-    let mut out = gain;
-    for (r, row) in out.iter_mut().enumerate() {
-        let miss = dp[r] - (gain[r][0] * du[0] + gain[r][1] * du[1]);
-        row[0] += miss * du[0] / norm;
-        row[1] += miss * du[1] / norm;
-    }
-    out
-}
-
-/// For a clipped or speckled spot, flips a tilt axis's response when the image axis it
-/// mainly drives (vertical tilt y, horizontal x) moved clearly against the prediction: a
-/// clipped probe can give the wrong sign.
-fn flip_wrong_signs(gain: [[f64; 2]; 2], last: Option<(Vec2, Vec2)>, now: Vec2) -> [[f64; 2]; 2] {
-    let Some((before, du)) = last else {
-        return gain;
-    };
-    let mut out = gain;
-    for axis in [0, 1] {
-        let row = 1 - axis;
-        let predicted = gain[row][0] * du[0] + gain[row][1] * du[1];
-        let observed = now[row] - before[row];
-        if observed.abs() > 5.0 && predicted * observed < 0.0 {
-            out[0][axis] = -gain[0][axis];
-            out[1][axis] = -gain[1][axis];
-        }
-    }
-    out
+fn strongest(beams: &[Beam]) -> Option<Beam> {
+    beams
+        .iter()
+        .max_by(|a, b| a.signal.total_cmp(&b.signal))
+        .copied()
 }

@@ -1,0 +1,126 @@
+//! What changed between two pictures of the same camera: the signed difference, with the
+//! laser's power drift between the frames taken out first (the gain that best maps the
+//! earlier picture's steady light onto the later one), saturated pixels ignored (they show
+//! nothing), then searched for beams both ways. Everything that did not move cancels; a
+//! moved beam shows where it appeared and where it vanished.
+
+use super::beams::{Beam, find_beams};
+use super::picture::Picture;
+
+/// Pixels brighter than this many noise deviations in both pictures set the gain ...
+const GAIN_NOISES: f32 = 10.0;
+
+/// ... when there are at least this many of them.
+const GAIN_MIN_PIXELS: usize = 400;
+
+/// Every this-many-th pixel is sampled for the gain.
+const GAIN_STRIDE: usize = 3;
+
+/// What moved between two pictures.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Changes {
+    /// Where light appeared (a moved beam's new place).
+    pub appeared: Vec<Beam>,
+    /// Where light vanished (its old place).
+    pub vanished: Vec<Beam>,
+    /// The later picture's light over the earlier one's, for what stayed (1 without drift).
+    pub gain: f64,
+}
+
+/// The changes from `before` to `after`; empty when the sizes differ.
+pub fn changes(before: &Picture, after: &Picture) -> Changes {
+    if before.width() != after.width() || before.height() != after.height() {
+        return Changes::default();
+    }
+    let gain = steady_gain(before, after);
+    let g = gain as f32;
+    let (b, a) = (before.light(), after.light());
+    let (bs, as_) = (before.saturated(), after.saturated());
+    let difference: Vec<f32> = (0..a.len())
+        .map(|i| {
+            if bs[i] || as_[i] {
+                0.0
+            } else {
+                a[i] - g * b[i]
+            }
+        })
+        .collect();
+    let noise = after.noise().hypot(gain * before.noise());
+    let (w, h) = (after.width(), after.height());
+    let side = |sign: f32| {
+        let light = one_side(&difference, w, h, sign, noise);
+        find_beams(&Picture::from_light(w, h, light, noise))
+    };
+    Changes {
+        appeared: side(1.0),
+        vanished: side(-1.0),
+        gain,
+    }
+}
+
+/// Side of the blocks that decide which sign of change a place shows.
+const SIDE_BLOCK: usize = 8;
+
+/// A block whose mean change clearly has the other sign holds the opposite blob.
+const SIDE_NOISES: f64 = 3.0;
+
+/// The difference times `sign`, with the blocks (and their neighbours) whose change clearly
+/// has the opposite sign set to zero: a window measuring where light appeared must not sum
+/// the light that vanished nearby.
+fn one_side(difference: &[f32], w: usize, h: usize, sign: f32, noise: f64) -> Vec<f32> {
+    let (bw, bh) = (w.div_ceil(SIDE_BLOCK), h.div_ceil(SIDE_BLOCK));
+    let mut sums = vec![0f32; bw * bh];
+    let mut counts = vec![0f32; bw * bh];
+    for (y, row) in difference.chunks_exact(w).enumerate() {
+        let base = (y / SIDE_BLOCK) * bw;
+        for (b, chunk) in row.chunks(SIDE_BLOCK).enumerate() {
+            sums[base + b] += sign * chunk.iter().sum::<f32>();
+            counts[base + b] += chunk.len() as f32;
+        }
+    }
+    let limit = -(SIDE_NOISES * noise / SIDE_BLOCK as f64) as f32;
+    let opposite: Vec<bool> = sums
+        .iter()
+        .zip(&counts)
+        .map(|(s, n)| s / n.max(1.0) < limit)
+        .collect();
+    let masked: Vec<bool> = (0..bw * bh)
+        .map(|b| {
+            let (bx, by) = (b % bw, b / bw);
+            (by.saturating_sub(1)..(by + 2).min(bh))
+                .any(|y| (bx.saturating_sub(1)..(bx + 2).min(bw)).any(|x| opposite[y * bw + x]))
+        })
+        .collect();
+    let mut out = Vec::with_capacity(difference.len());
+    for (y, row) in difference.chunks_exact(w).enumerate() {
+        let base = (y / SIDE_BLOCK) * bw;
+        for (b, chunk) in row.chunks(SIDE_BLOCK).enumerate() {
+            if masked[base + b] {
+                out.extend(std::iter::repeat_n(0.0, chunk.len()));
+            } else {
+                out.extend(chunk.iter().map(|v| v * sign));
+            }
+        }
+    }
+    out
+}
+
+/// The median ratio of `after` to `before` over pixels bright and unsaturated in both; 1
+/// when too few pixels are.
+fn steady_gain(before: &Picture, after: &Picture) -> f64 {
+    let floor_b = GAIN_NOISES * before.noise() as f32;
+    let floor_a = GAIN_NOISES * after.noise() as f32;
+    let (b, a) = (before.light(), after.light());
+    let mut ratios: Vec<f32> = (0..a.len())
+        .step_by(GAIN_STRIDE)
+        .filter(|&i| {
+            b[i] > floor_b && a[i] > floor_a && !before.is_saturated(i) && !after.is_saturated(i)
+        })
+        .map(|i| a[i] / b[i])
+        .collect();
+    if ratios.len() < GAIN_MIN_PIXELS {
+        return 1.0;
+    }
+    let mid = ratios.len() / 2;
+    f64::from(*ratios.select_nth_unstable_by(mid, f32::total_cmp).1)
+}

@@ -1,0 +1,468 @@
+//! A camera frame made ready for measurement: the light above the background at every
+//! pixel. The background is a plane fitted robustly to cell means (ambient light and a
+//! slope cancel; cells holding light are rejected as outliers; means, not medians, because
+//! a dark level close to zero clips the noise from below and only the mean of the clipped
+//! values is the level a dark pixel adds to a sum), the read noise comes from
+//! neighbouring-pixel differences (so a slope does not count as noise), a column streak
+//! that a bright spot smears through the whole frame is measured in the top and bottom
+//! bands and removed, and hot pixels (one pixel far brighter than all its neighbours) are
+//! replaced by their neighbours' mean. Saturated pixels are remembered: they carry no shape.
+
+use optalign_optics::Frame;
+
+/// Cells per short image side for the background fit (at least 16 px each).
+const CELLS_PER_SIDE: usize = 16;
+
+/// A cell whose median is this many robust deviations from the plane holds light.
+const CELL_OUTLIER: f64 = 3.0;
+
+/// Share of the image height at the top and at the bottom where column streaks are read.
+const BAND_SHARE: f64 = 0.08;
+
+/// A column offset smaller than this many standard errors of its estimate is noise.
+const STREAK_SIGNIFICANCE: f64 = 5.0;
+
+/// A hot pixel exceeds the background by this many noise deviations ...
+const HOT_NOISES: f64 = 6.0;
+
+/// ... and all but one of its eight neighbours by this factor.
+const HOT_RATIO: f32 = 2.5;
+
+/// The floor of the noise estimate, gray levels (quantisation alone gives 0.29).
+const MIN_NOISE: f64 = 0.3;
+
+/// A frame's light above its background.
+#[derive(Clone, Debug)]
+pub struct Picture {
+    width: usize,
+    height: usize,
+    /// Light above the background, gray levels, row-major.
+    light: Vec<f32>,
+    /// Pixels at the saturation level.
+    saturated: Vec<bool>,
+    /// Read noise, gray levels (standard deviation).
+    noise: f64,
+    /// The background level at the image centre, gray levels.
+    background: f64,
+}
+
+impl Picture {
+    /// Measures the background, the noise, streaks and hot pixels of `frame`.
+    pub fn new(frame: &Frame) -> Self {
+        let (width, height) = (frame.width() as usize, frame.height() as usize);
+        let raw = frame.pixels();
+        let plane = Plane::fit(raw, width, height);
+        let noise = plane.noise;
+        let mut light = Vec::with_capacity(raw.len());
+        for (y, row) in raw.chunks_exact(width).enumerate() {
+            let start = plane.at(0, y) as f32;
+            let step = plane.b as f32;
+            light.extend(
+                row.iter()
+                    .enumerate()
+                    .map(|(x, &p)| f32::from(p) - (start + step * x as f32)),
+            );
+        }
+        remove_column_streaks(&mut light, width, height, noise);
+        repair_hot_pixels(&mut light, width, height, noise);
+        let top = raw.iter().copied().max().unwrap_or(0);
+        let plateau = bytecount(raw, top);
+        // The brightest level is saturation when several pixels sit on it (or it is 255).
+        let saturation = (top == u8::MAX || plateau >= 8).then_some(top);
+        let saturated = raw
+            .iter()
+            .map(|&p| Some(p) == saturation && p > 0)
+            .collect();
+        Self {
+            width,
+            height,
+            light,
+            saturated,
+            noise,
+            background: plane.at(width / 2, height / 2),
+        }
+    }
+
+    pub fn width(&self) -> usize {
+        self.width
+    }
+
+    pub fn height(&self) -> usize {
+        self.height
+    }
+
+    /// Light above the background, row-major.
+    pub fn light(&self) -> &[f32] {
+        &self.light
+    }
+
+    /// Whether pixel `i` (row-major) is saturated.
+    pub fn is_saturated(&self, i: usize) -> bool {
+        self.saturated[i]
+    }
+
+    /// The saturation mask, row-major.
+    pub fn saturated(&self) -> &[bool] {
+        &self.saturated
+    }
+
+    /// Read noise, gray levels.
+    pub fn noise(&self) -> f64 {
+        self.noise
+    }
+
+    /// The background level at the image centre, gray levels.
+    pub fn background(&self) -> f64 {
+        self.background
+    }
+
+    /// The same measurement on another light image of this size (a frame difference):
+    /// nothing saturated, noise `noise`.
+    pub(crate) fn from_light(width: usize, height: usize, light: Vec<f32>, noise: f64) -> Self {
+        Self {
+            width,
+            height,
+            saturated: vec![false; light.len()],
+            light,
+            noise,
+            background: 0.0,
+        }
+    }
+}
+
+/// The background plane `a + b x + c y` and the read noise.
+struct Plane {
+    a: f64,
+    b: f64,
+    c: f64,
+    noise: f64,
+}
+
+impl Plane {
+    fn at(&self, x: usize, y: usize) -> f64 {
+        self.a + self.b * (x as f64 + 0.5) + self.c * (y as f64 + 0.5)
+    }
+
+    /// Fits the plane to cell medians, rejecting cells with light, and measures the noise
+    /// from horizontal neighbour differences in the cells kept.
+    fn fit(raw: &[u8], width: usize, height: usize) -> Self {
+        let cell = (width.min(height) / CELLS_PER_SIDE)
+            .max(16)
+            .min(width.min(height).max(1));
+        let (cw, ch) = (width.div_ceil(cell), height.div_ceil(cell));
+        let mut cells = Vec::with_capacity(cw * ch);
+        for cy in 0..ch {
+            for cx in 0..cw {
+                let mut histogram = Histogram::default();
+                let (x0, y0) = (cx * cell, cy * cell);
+                let (x1, y1) = ((x0 + cell).min(width), (y0 + cell).min(height));
+                for y in (y0..y1).step_by(2) {
+                    for &p in raw[y * width + x0..y * width + x1].iter().step_by(2) {
+                        histogram.add(p);
+                    }
+                }
+                if histogram.total == 0 {
+                    continue;
+                }
+                let centre = [(x0 + x1) as f64 / 2.0, (y0 + y1) as f64 / 2.0];
+                cells.push((centre, histogram.robust_mean(), [x0, y0, x1, y1]));
+            }
+        }
+        let mut keep = vec![true; cells.len()];
+        let mut plane = [0.0; 3];
+        for _ in 0..5 {
+            plane = least_squares_plane(&cells, &keep).unwrap_or(plane);
+            let residuals: Vec<f64> = cells
+                .iter()
+                .map(|(c, m, _)| m - (plane[0] + plane[1] * c[0] + plane[2] * c[1]))
+                .collect();
+            let kept: Vec<f64> = residuals
+                .iter()
+                .zip(&keep)
+                .filter(|(_, k)| **k)
+                .map(|(r, _)| r.abs())
+                .collect();
+            let spread = 1.4826 * median(kept).unwrap_or(0.0);
+            let limit = CELL_OUTLIER * spread.max(0.5);
+            let next: Vec<bool> = residuals.iter().map(|r| r.abs() <= limit).collect();
+            if next == keep || next.iter().filter(|k| **k).count() < 3 {
+                break;
+            }
+            keep = next;
+        }
+        let mut differences = Histogram::default();
+        for ((_, _, [x0, y0, x1, y1]), _) in cells.iter().zip(&keep).filter(|(_, k)| **k) {
+            for y in (*y0..*y1).step_by(3) {
+                let row = &raw[y * width..(y + 1) * width];
+                for x in (*x0..(*x1).min(width - 1)).step_by(2) {
+                    differences.add(row[x + 1].abs_diff(row[x]));
+                }
+            }
+        }
+        let noise = differences.noise_from_differences().max(MIN_NOISE);
+        Self {
+            a: plane[0],
+            b: plane[1],
+            c: plane[2],
+            noise,
+        }
+    }
+}
+
+/// How many bytes equal `value`.
+fn bytecount(bytes: &[u8], value: u8) -> usize {
+    bytes.iter().map(|&b| usize::from(b == value)).sum()
+}
+
+/// Counts of 8-bit values: medians, trimmed means and spreads in one pass over 256 bins.
+struct Histogram {
+    counts: [u32; 256],
+    total: u32,
+}
+
+impl Default for Histogram {
+    fn default() -> Self {
+        Self {
+            counts: [0; 256],
+            total: 0,
+        }
+    }
+}
+
+impl Histogram {
+    fn add(&mut self, value: u8) {
+        self.counts[usize::from(value)] += 1;
+        self.total += 1;
+    }
+
+    /// The smallest value with at least `share` of the counts at or below it.
+    fn quantile(&self, share: f64) -> u8 {
+        let wanted = (share * f64::from(self.total)).ceil().max(1.0) as u32;
+        let mut seen = 0;
+        for (value, &count) in self.counts.iter().enumerate() {
+            seen += count;
+            if seen >= wanted {
+                return value as u8;
+            }
+        }
+        u8::MAX
+    }
+
+    /// The mean without single outliers far above the median (hot pixels).
+    fn robust_mean(&self) -> f64 {
+        let median = f64::from(self.quantile(0.5));
+        // The median absolute deviation, from the distribution of |v - median|.
+        let mut deviations = [0u32; 256];
+        for (value, &count) in self.counts.iter().enumerate() {
+            deviations[(value as f64 - median).abs() as usize] += count;
+        }
+        let half = self.total.div_ceil(2);
+        let mut seen = 0;
+        let mad = deviations
+            .iter()
+            .position(|&count| {
+                seen += count;
+                seen >= half
+            })
+            .unwrap_or(0) as f64;
+        let limit = median + 8.0 * (1.4826 * mad).max(1.0);
+        let (sum, n) = self
+            .counts
+            .iter()
+            .enumerate()
+            .filter(|(value, _)| (*value as f64) <= limit)
+            .fold((0.0, 0.0), |(s, n), (value, &count)| {
+                (s + value as f64 * f64::from(count), n + f64::from(count))
+            });
+        if n == 0.0 { median } else { sum / n }
+    }
+
+    /// The read noise from absolute differences of neighbouring background pixels: their
+    /// mean over the lower 98 % (hot pixels and edges dropped), which for Gaussian noise of
+    /// standard deviation σ is 0.953 · 2σ/√π. A mean, not a median, because differences of
+    /// 8-bit pixels are whole numbers.
+    fn noise_from_differences(&self) -> f64 {
+        if self.total == 0 {
+            return 0.0;
+        }
+        let mut keep = (f64::from(self.total) * 0.98).ceil() as u32;
+        let (mut sum, mut n) = (0.0, 0.0);
+        for (value, &count) in self.counts.iter().enumerate() {
+            let taken = count.min(keep);
+            sum += value as f64 * f64::from(taken);
+            n += f64::from(taken);
+            keep -= taken;
+            if keep == 0 {
+                break;
+            }
+        }
+        sum / n.max(1.0) * std::f64::consts::PI.sqrt() / 2.0 / 0.953
+    }
+}
+
+/// The median of the values, or `None` when there are none.
+fn median(mut values: Vec<f64>) -> Option<f64> {
+    if values.is_empty() {
+        return None;
+    }
+    let mid = values.len() / 2;
+    Some(*values.select_nth_unstable_by(mid, f64::total_cmp).1)
+}
+
+/// Least squares of `m = a + b x + c y` over the kept cells.
+fn least_squares_plane(cells: &[([f64; 2], f64, [usize; 4])], keep: &[bool]) -> Option<[f64; 3]> {
+    let mut normal = nalgebra::Matrix3::<f64>::zeros();
+    let mut rhs = nalgebra::Vector3::<f64>::zeros();
+    for ((c, m, _), _) in cells.iter().zip(keep).filter(|(_, k)| **k) {
+        let row = nalgebra::Vector3::new(1.0, c[0], c[1]);
+        normal += row * row.transpose();
+        rhs += row * *m;
+    }
+    let solution = normal.try_inverse()? * rhs;
+    Some([solution[0], solution[1], solution[2]])
+}
+
+/// Removes a constant offset from each column whose top and bottom bands both show one
+/// (a read-out smear streak runs the whole height; a beam rarely fills both bands).
+fn remove_column_streaks(light: &mut [f32], width: usize, height: usize, noise: f64) {
+    let band = ((height as f64 * BAND_SHARE) as usize)
+        .max(2)
+        .min(height / 2);
+    if band < 2 {
+        return;
+    }
+    let limit = (STREAK_SIGNIFICANCE * 1.25 * noise / (band as f64).sqrt()) as f32;
+    // Column-major copies of the two bands, read row by row.
+    let mut top = vec![0f32; band * width];
+    let mut bottom = vec![0f32; band * width];
+    for y in 0..band {
+        for x in 0..width {
+            top[x * band + y] = light[y * width + x];
+            bottom[x * band + y] = light[(height - band + y) * width + x];
+        }
+    }
+    let offsets: Vec<f32> = top
+        .chunks_exact_mut(band)
+        .zip(bottom.chunks_exact_mut(band))
+        .map(|(t, b)| {
+            let (t, b) = (median_f32(t), median_f32(b));
+            // The smaller offset, taken only when both bands agree on its sign.
+            let offset = if t > 0.0 && b > 0.0 {
+                t.min(b)
+            } else if t < 0.0 && b < 0.0 {
+                t.max(b)
+            } else {
+                0.0
+            };
+            if offset.abs() > limit { offset } else { 0.0 }
+        })
+        .collect();
+    if offsets.iter().all(|&o| o == 0.0) {
+        return;
+    }
+    for row in light.chunks_exact_mut(width) {
+        for (v, o) in row.iter_mut().zip(&offsets) {
+            *v -= o;
+        }
+    }
+}
+
+/// The median of a slice (reordered).
+fn median_f32(values: &mut [f32]) -> f32 {
+    let mid = values.len() / 2;
+    *values.select_nth_unstable_by(mid, f32::total_cmp).1
+}
+
+/// Replaces hot pixels, single or in pairs: a pixel far brighter than all but one of its
+/// eight neighbours (a beam spreads over many pixels) takes their median.
+fn repair_hot_pixels(light: &mut [f32], width: usize, height: usize, noise: f64) {
+    let floor = (HOT_NOISES * noise) as f32;
+    let mut around = Vec::with_capacity(8);
+    for i in 0..light.len() {
+        let v = light[i];
+        if v <= floor {
+            continue;
+        }
+        // Inside a beam both horizontal neighbours are nearly as bright: not a hot pixel.
+        let quick = (v - floor / 2.0) / HOT_RATIO;
+        if i > 0 && i + 1 < light.len() && light[i - 1] >= quick && light[i + 1] >= quick {
+            continue;
+        }
+        let (x, y) = (i % width, i / width);
+        around.clear();
+        for ny in y.saturating_sub(1)..(y + 2).min(height) {
+            for nx in x.saturating_sub(1)..(x + 2).min(width) {
+                if (nx, ny) != (x, y) {
+                    around.push(light[ny * width + nx]);
+                }
+            }
+        }
+        if around.len() < 3 {
+            continue;
+        }
+        around.sort_by(f32::total_cmp);
+        let second = around[around.len() - 2];
+        if v > HOT_RATIO * second.max(0.0) + floor / 2.0 {
+            light[i] = around[around.len() / 2];
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::imaging::synthetic::Scene;
+
+    #[test]
+    fn a_sloping_background_and_its_noise_are_measured() {
+        let frame = Scene::new(400, 300)
+            .background(30.0, [0.08, -0.05])
+            .noise(4.0, 1)
+            .frame();
+        let picture = Picture::new(&frame);
+        assert!((picture.noise() - 4.0).abs() < 0.4, "{}", picture.noise());
+        assert!(
+            (picture.background() - 30.0).abs() < 1.0,
+            "{}",
+            picture.background()
+        );
+        let light = picture.light();
+        let mean = light.iter().map(|&v| f64::from(v)).sum::<f64>() / light.len() as f64;
+        assert!(mean.abs() < 0.5, "{mean}");
+        // Corners too: the slope is gone everywhere.
+        let corner = (0..20)
+            .flat_map(|y| (0..20).map(move |x| (x, y)))
+            .map(|(x, y)| f64::from(light[y * 400 + 380 + x]))
+            .sum::<f64>()
+            / 400.0;
+        assert!(corner.abs() < 1.5, "{corner}");
+    }
+
+    #[test]
+    fn a_beam_does_not_pull_the_background_up() {
+        let frame = Scene::new(400, 300)
+            .background(10.0, [0.0, 0.0])
+            .gaussian([200.0, 150.0], 60.0, 150.0)
+            .noise(2.0, 2)
+            .frame();
+        let picture = Picture::new(&frame);
+        assert!(
+            (picture.background() - 10.0).abs() < 0.5,
+            "{}",
+            picture.background()
+        );
+    }
+
+    #[test]
+    fn hot_pixels_and_smear_columns_are_removed() {
+        let frame = Scene::new(300, 200)
+            .background(10.0, [0.0, 0.0])
+            .hot_pixels(50, 200.0, 3)
+            .smear_column(120, 6, 40.0)
+            .noise(2.0, 4)
+            .frame();
+        let picture = Picture::new(&frame);
+        let worst = picture.light().iter().copied().fold(0f32, f32::max);
+        assert!(worst < 20.0, "brightest remaining {worst}");
+    }
+}

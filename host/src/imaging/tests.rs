@@ -1,0 +1,230 @@
+//! The detector on synthetic frames of every beam kind a bench shows, each with its true
+//! centre known: round beams must be found within 1 px, all others within 2 px, with
+//! stray light, a sloping background, a smear column and hot pixels around them.
+
+use super::synthetic::Scene;
+use super::{Beam, Picture, changes, find_beams};
+
+const W: usize = 640;
+const H: usize = 480;
+
+fn beams(scene: &Scene) -> Vec<Beam> {
+    find_beams(&Picture::new(&scene.frame()))
+}
+
+/// The beam found nearest `truth`, and its distance from it.
+fn found(scene: &Scene, truth: [f64; 2]) -> (Beam, f64) {
+    let all = beams(scene);
+    let distance = |b: &Beam| (b.centre[0] - truth[0]).hypot(b.centre[1] - truth[1]);
+    let best = all
+        .iter()
+        .min_by(|a, b| distance(a).total_cmp(&distance(b)))
+        .copied()
+        .unwrap_or_else(|| panic!("no beam found near {truth:?}"));
+    let d = distance(&best);
+    (best, d)
+}
+
+/// A plain bench background: dark level, a little slope, read noise.
+fn bench(seed: u64) -> Scene {
+    Scene::new(W, H)
+        .background(8.0, [0.01, -0.006])
+        .noise(2.5, seed)
+}
+
+#[test]
+fn a_round_beam_is_found_to_a_tenth_of_a_pixel() {
+    let truth = [321.37, 228.81];
+    let (beam, d) = found(&bench(1).gaussian(truth, 45.0, 150.0), truth);
+    assert!(d < 0.1, "{d} {beam:?}");
+    assert!((beam.size() - 45.0).abs() < 1.5, "{beam:?}");
+    assert!(beam.localised && !beam.clipped && !beam.saturated && beam.parts == 1);
+}
+
+#[test]
+fn a_round_beam_in_heavy_noise_is_found_within_a_pixel_and_says_how_sure() {
+    let truth = [300.6, 250.2];
+    let quiet = found(&bench(2).gaussian(truth, 60.0, 150.0), truth).0;
+    let scene = Scene::new(W, H)
+        .background(20.0, [0.0, 0.0])
+        .gaussian(truth, 60.0, 150.0)
+        .noise(60.0, 3);
+    let (beam, d) = found(&scene, truth);
+    assert!(d < 1.0, "{d} {beam:?}");
+    assert!(
+        beam.uncertainty > 5.0 * quiet.uncertainty,
+        "{beam:?} vs {quiet:?}"
+    );
+    assert!(
+        d < 4.0 * beam.uncertainty,
+        "{d} against {}",
+        beam.uncertainty
+    );
+}
+
+#[test]
+fn an_elliptical_turned_beam_is_found_and_its_shape_measured() {
+    let truth = [280.2, 260.7];
+    let (beam, d) = found(
+        &bench(4).elliptical(truth, [70.0, 30.0], 35.0, 140.0),
+        truth,
+    );
+    assert!(d < 2.0, "{d} {beam:?}");
+    assert!((beam.radii[0] - 70.0).abs() < 4.0 && (beam.radii[1] - 30.0).abs() < 3.0);
+    assert!((beam.angle_deg - 35.0).abs() < 3.0, "{beam:?}");
+}
+
+#[test]
+fn two_lobed_modes_are_one_beam_centred_between_the_lobes() {
+    for (m, n) in [(0, 1), (1, 0)] {
+        let truth = [330.4, 235.9];
+        let (beam, d) = found(&bench(5).hermite_gauss(truth, 50.0, m, n, 150.0), truth);
+        assert!(d < 2.0, "TEM{m}{n}: {d} {beam:?}");
+        assert_eq!(
+            beams(&bench(5).hermite_gauss(truth, 50.0, m, n, 150.0)).len(),
+            1
+        );
+        // In heavy noise the dark line between the lobes splits them into two regions,
+        // which are still one beam.
+        let noisy = Scene::new(W, H)
+            .background(40.0, [0.0, 0.0])
+            .hermite_gauss(truth, 50.0, m, n, 150.0)
+            .noise(20.0, 6);
+        let (beam, d) = found(&noisy, truth);
+        assert!(d < 2.0, "TEM{m}{n} in noise: {d} {beam:?}");
+        assert_eq!(beams(&noisy).len(), 1, "{beam:?}");
+    }
+}
+
+#[test]
+fn a_doughnut_and_a_flat_top_are_found_at_their_centres() {
+    let truth = [310.3, 245.5];
+    let (ring, d) = found(&bench(6).donut(truth, 50.0, 150.0), truth);
+    assert!(d < 2.0, "{d} {ring:?}");
+    let (flat, d) = found(&bench(7).top_hat(truth, 55.0, 120.0), truth);
+    assert!(d < 2.0, "{d} {flat:?}");
+}
+
+#[test]
+fn fringes_and_speckle_inside_a_beam_do_not_move_its_centre() {
+    let truth = [305.8, 230.4];
+    let etalon = bench(8)
+        .gaussian(truth, 70.0, 150.0)
+        .etalon(truth, 0.9, 22.0, 60.0);
+    let (beam, d) = found(&etalon, truth);
+    assert!(d < 2.0, "etalon: {d} {beam:?}");
+    let speckled = bench(9).gaussian(truth, 70.0, 120.0).speckle(0.3, 3.0, 11);
+    let (beam, d) = found(&speckled, truth);
+    assert!(d < 2.0, "speckle: {d} {beam:?}");
+    assert!(beam.localised, "a textured spot is still a spot: {beam:?}");
+}
+
+#[test]
+fn a_saturated_core_keeps_its_centre() {
+    let truth = [290.5, 210.3];
+    let (beam, d) = found(&bench(10).gaussian(truth, 40.0, 900.0), truth);
+    assert!(d < 1.0, "{d} {beam:?}");
+    assert!(beam.saturated, "{beam:?}");
+}
+
+#[test]
+fn a_beam_cut_by_the_border_is_flagged_and_its_fit_finds_the_centre() {
+    let truth = [14.0, 230.0];
+    let (beam, _) = found(&bench(11).gaussian(truth, 50.0, 150.0), truth);
+    assert!(beam.clipped, "{beam:?}");
+    assert!(
+        beam.centre[0] > truth[0] + 5.0,
+        "the centroid is pulled inwards: {beam:?}"
+    );
+    let fit = beam.fit.expect("a clipped Gaussian beam is fitted");
+    let d = (fit.centre[0] - truth[0]).hypot(fit.centre[1] - truth[1]);
+    assert!(d < 2.0, "{d} {fit:?}");
+}
+
+#[test]
+fn diffraction_rings_do_not_pull_the_centre() {
+    let truth = [318.2, 244.6];
+    let scene = bench(12)
+        .gaussian(truth, 30.0, 150.0)
+        .rings(truth, 45.0, 25.0);
+    let (beam, d) = found(&scene, truth);
+    assert!(d < 1.0, "{d} {beam:?}");
+}
+
+#[test]
+fn stray_light_a_smear_column_and_hot_pixels_leave_the_beam_alone() {
+    let truth = [260.4, 300.2];
+    let stray = [480.0, 120.0];
+    let scene = Scene::new(W, H)
+        .background(30.0, [0.05, 0.03])
+        .gaussian(truth, 50.0, 140.0)
+        .gaussian(stray, 35.0, 90.0)
+        .smear_column(250, 20, 25.0)
+        .hot_pixels(300, 200.0, 13)
+        .noise(3.0, 14);
+    let (beam, d) = found(&scene, truth);
+    assert!(d < 1.0, "{d} {beam:?}");
+    let (ghost, d) = found(&scene, stray);
+    assert!(
+        d < 1.0,
+        "the stray spot is a beam of its own: {d} {ghost:?}"
+    );
+    assert_eq!(beams(&scene).len(), 2, "{:?}", beams(&scene));
+}
+
+#[test]
+fn two_beams_side_by_side_stay_apart() {
+    let left = [200.3, 240.0];
+    let right = [420.8, 245.0];
+    let scene = bench(15)
+        .gaussian(left, 65.0, 150.0)
+        .gaussian(right, 58.0, 140.0);
+    assert_eq!(beams(&scene).len(), 2);
+    assert!(found(&scene, left).1 < 1.0 && found(&scene, right).1 < 1.0);
+}
+
+#[test]
+fn a_speckle_cloud_is_not_a_spot() {
+    let truth = [320.0, 240.0];
+    let cloud = bench(16).gaussian(truth, 110.0, 70.0).speckle(1.0, 2.5, 17);
+    let (beam, _) = found(&cloud, truth);
+    assert!(!beam.localised, "{beam:?}");
+}
+
+#[test]
+fn a_blank_frame_has_no_beams() {
+    assert!(beams(&bench(18)).is_empty());
+    let busy = Scene::new(W, H)
+        .background(60.0, [0.1, 0.05])
+        .hot_pixels(500, 150.0, 19)
+        .noise(8.0, 20);
+    assert!(beams(&busy).is_empty(), "{:?}", beams(&busy));
+}
+
+#[test]
+fn changes_show_the_moved_beam_through_a_power_drift() {
+    let stays = [480.0, 300.0];
+    let (from, to) = ([150.0, 150.0], [240.0, 190.0]);
+    let before = Scene::new(W, H)
+        .background(8.0, [0.0, 0.0])
+        .gaussian(stays, 50.0, 140.0)
+        .gaussian(from, 40.0, 120.0)
+        .noise(2.5, 21);
+    // The laser is 10 % brighter in the second frame.
+    let after = Scene::new(W, H)
+        .background(8.0, [0.0, 0.0])
+        .gaussian(stays, 50.0, 154.0)
+        .gaussian(to, 40.0, 132.0)
+        .noise(2.5, 22);
+    let moved = changes(
+        &Picture::new(&before.frame()),
+        &Picture::new(&after.frame()),
+    );
+    assert!((moved.gain - 1.1).abs() < 0.02, "{}", moved.gain);
+    assert_eq!(moved.appeared.len(), 1, "{:?}", moved.appeared);
+    assert_eq!(moved.vanished.len(), 1, "{:?}", moved.vanished);
+    let a = moved.appeared[0].centre;
+    let v = moved.vanished[0].centre;
+    assert!((a[0] - to[0]).hypot(a[1] - to[1]) < 1.5, "{a:?}");
+    assert!((v[0] - from[0]).hypot(v[1] - from[1]) < 1.5, "{v:?}");
+}

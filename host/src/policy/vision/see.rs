@@ -1,0 +1,284 @@
+//! What the agent sees in a frame and what a move changed. A [`View`] holds the frame's
+//! picture and its beams. [`motion`] finds the beam that moved in the two frames'
+//! difference, where everything that stayed cancels (stray light, the other beam, also
+//! when the moved beam was merged with it), and measures it on the views' own beams:
+//! where it was, where it went, or only one of the two when it left or entered the image.
+//! [`stationary_pairs`] pairs features that stayed, to measure the bench's jitter.
+
+use optalign_optics::Frame;
+
+use super::model::{Vec2, distance};
+use crate::imaging::{Beam, Picture, changes, find_beams};
+
+/// One frame, measured.
+pub struct View {
+    pub picture: Picture,
+    pub beams: Vec<Beam>,
+}
+
+impl View {
+    pub fn new(frame: &Frame) -> Self {
+        let picture = Picture::new(frame);
+        let beams = find_beams(&picture);
+        Self { picture, beams }
+    }
+
+    /// The image size, px.
+    pub fn size(&self) -> Vec2 {
+        [self.picture.width() as f64, self.picture.height() as f64]
+    }
+
+    /// The image centre, px.
+    pub fn centre(&self) -> Vec2 {
+        let [w, h] = self.size();
+        [w / 2.0, h / 2.0]
+    }
+}
+
+/// One place of the moved beam.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Seen {
+    /// The beam there: the view's own detection, or only the change when that had none.
+    pub beam: Beam,
+    /// Measured on the view's own beam, whole and alone (false: only the change, or a
+    /// detection that holds more than the moved beam).
+    pub whole: bool,
+}
+
+/// How the beam that moved shows in two views.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Motion {
+    /// Where it was (`None`: not in the earlier view).
+    pub from: Option<Seen>,
+    /// Where it is now (`None`: not in the later view).
+    pub to: Option<Seen>,
+}
+
+/// How far a stationary feature may seem to move between two frames, px: `steady` (the
+/// bench's jitter as measured so far) and three times the two centres' combined uncertainty.
+fn allowance(a: &Beam, b: &Beam, steady: f64) -> f64 {
+    steady
+        .max(3.0 * a.uncertainty.hypot(b.uncertainty))
+        .max(1.0)
+}
+
+/// Whether two detections can be the same feature (alike in size and light).
+fn alike(a: &Beam, b: &Beam) -> bool {
+    let size = a.size().max(1.0) / b.size().max(1.0);
+    let light = a.signal.max(1.0) / b.signal.max(1.0);
+    (0.5..2.0).contains(&size) && (0.33..3.0).contains(&light)
+}
+
+/// The beams of `before` and `after` paired as stationary features (index pairs), nearest
+/// first; the rest are unpaired.
+pub fn stationary_pairs(before: &[Beam], after: &[Beam], steady: f64) -> Vec<(usize, usize)> {
+    let mut candidates: Vec<(f64, usize, usize)> = Vec::new();
+    for (i, a) in before.iter().enumerate() {
+        for (j, b) in after.iter().enumerate() {
+            let d = distance(a.centre, b.centre);
+            if d <= allowance(a, b, steady) && alike(a, b) {
+                candidates.push((d, i, j));
+            }
+        }
+    }
+    candidates.sort_by(|x, y| x.0.total_cmp(&y.0));
+    let (mut used_before, mut used_after) = (vec![false; before.len()], vec![false; after.len()]);
+    let mut pairs = Vec::new();
+    for (_, i, j) in candidates {
+        if !used_before[i] && !used_after[j] {
+            used_before[i] = true;
+            used_after[j] = true;
+            pairs.push((i, j));
+        }
+    }
+    pairs
+}
+
+/// Where a change shows in one view: the view's own detection that covers the change and
+/// did not stay put between the frames, nearest first; else only the change itself.
+fn locate(blob: &Beam, beams: &[Beam], moving: &[bool]) -> Seen {
+    beams
+        .iter()
+        .zip(moving)
+        .filter(|(b, moving)| **moving && distance(b.centre, blob.centre) < blob.size() + b.size())
+        .map(|(b, _)| b)
+        .min_by(|a, b| distance(a.centre, blob.centre).total_cmp(&distance(b.centre, blob.centre)))
+        .map_or(
+            Seen {
+                beam: *blob,
+                whole: false,
+            },
+            |b| Seen {
+                beam: *b,
+                whole: true,
+            },
+        )
+}
+
+/// The beam that moved between a place and the next is the same beam: a detection much
+/// larger than its counterpart holds more than the beam (it had merged with another) ...
+const MERGED_SIZE: f64 = 1.6;
+
+/// ... as does one with much more light than the change, when the beam moved clear of
+/// where it was.
+const MERGED_LIGHT: f64 = 1.4;
+
+/// The beam that moved from `before` to `after`: found in the frames' difference (what
+/// stayed cancels, whatever merged with it), measured on the views' own beams that did
+/// not stay put (`steady`: how far a stationary feature may seem to move). When several
+/// changes could be it, the one nearest `expected` (where the agent's model puts the moved
+/// beam now), else the strongest; `avoid` (another feature that moved in the same action,
+/// before and after) is not it.
+pub fn motion(
+    before: &View,
+    after: &View,
+    steady: f64,
+    expected: Option<Vec2>,
+    avoid: Option<(Vec2, Vec2)>,
+) -> Motion {
+    let moved = changes(&before.picture, &after.picture);
+    let keep = |blobs: &[Beam], avoid: Option<Vec2>| -> Vec<Beam> {
+        let nearest_avoided = avoid.and_then(|p| {
+            blobs
+                .iter()
+                .min_by(|a, b| distance(a.centre, p).total_cmp(&distance(b.centre, p)))
+                .filter(|b| distance(b.centre, p) < 2.0 * b.size())
+                .map(|b| b.centre)
+        });
+        blobs
+            .iter()
+            .filter(|b| Some(b.centre) != nearest_avoided)
+            .copied()
+            .collect()
+    };
+    let appeared = keep(&moved.appeared, avoid.map(|a| a.1));
+    let vanished = keep(&moved.vanished, avoid.map(|a| a.0));
+    let to = pick(&appeared, expected);
+    let from = match to {
+        Some(t) => vanished
+            .iter()
+            .filter(|b| (0.33..3.0).contains(&(b.signal / t.signal.max(1.0))))
+            .max_by(|a, b| a.signal.total_cmp(&b.signal))
+            .or_else(|| vanished.iter().max_by(|a, b| a.signal.total_cmp(&b.signal)))
+            .copied(),
+        None => vanished
+            .iter()
+            .max_by(|a, b| a.signal.total_cmp(&b.signal))
+            .copied(),
+    };
+    let pairs = stationary_pairs(&before.beams, &after.beams, steady);
+    let moving_before: Vec<bool> = (0..before.beams.len())
+        .map(|i| !pairs.iter().any(|p| p.0 == i))
+        .collect();
+    let moving_after: Vec<bool> = (0..after.beams.len())
+        .map(|j| !pairs.iter().any(|p| p.1 == j))
+        .collect();
+    // Far apart, each change is the whole beam: a detection there with much more light
+    // holds another beam too.
+    let apart = matches!((from, to), (Some(f), Some(t)) if distance(f.centre, t.centre) > 2.0 * f.size().max(t.size()));
+    let place = |blob: Beam, beams: &[Beam], moving: &[bool]| {
+        let mut seen = locate(&blob, beams, moving);
+        if apart && seen.whole && seen.beam.signal > MERGED_LIGHT * blob.signal {
+            seen.whole = false;
+        }
+        seen
+    };
+    let mut from = from.map(|b| place(b, &before.beams, &moving_before));
+    let mut to = to.map(|b| place(b, &after.beams, &moving_after));
+    if let (Some(f), Some(t)) = (&mut from, &mut to)
+        && f.whole
+        && t.whole
+    {
+        if f.beam.size() > MERGED_SIZE * t.beam.size() {
+            f.whole = false;
+        } else if t.beam.size() > MERGED_SIZE * f.beam.size() {
+            t.whole = false;
+        }
+    }
+    Motion { from, to }
+}
+
+fn pick(beams: &[Beam], expected: Option<Vec2>) -> Option<Beam> {
+    match expected {
+        Some(point) => beams
+            .iter()
+            .min_by(|a, b| distance(a.centre, point).total_cmp(&distance(b.centre, point)))
+            .copied(),
+        None => beams
+            .iter()
+            .max_by(|a, b| a.signal.total_cmp(&b.signal))
+            .copied(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn beam(centre: Vec2, size: f64, signal: f64) -> Beam {
+        Beam {
+            centre,
+            uncertainty: 0.2,
+            radii: [size, size],
+            angle_deg: 0.0,
+            signal,
+            peak: 100.0,
+            saturated: false,
+            clipped: false,
+            edge_level: 0.0,
+            localised: true,
+            parts: 1,
+            fit: None,
+        }
+    }
+
+    #[test]
+    fn stationary_features_pair_up_within_the_jitter_allowance() {
+        let stray = beam([100.0, 100.0], 30.0, 5e4);
+        let other = beam([600.0, 300.0], 60.0, 3e5);
+        let was = beam([300.0, 200.0], 55.0, 2.5e5);
+        let now = beam([340.0, 260.0], 55.0, 2.6e5);
+        let jittered =
+            |b: &Beam, d: f64| beam([b.centre[0] + d, b.centre[1] - d], b.size(), b.signal);
+        let before = [stray, other, was];
+        let after = [jittered(&other, 1.5), now, jittered(&stray, -1.0)];
+        let pairs = stationary_pairs(&before, &after, 4.0);
+        assert_eq!(pairs, vec![(0, 2), (1, 0)]);
+    }
+
+    #[test]
+    fn the_moved_beam_is_found_in_the_difference_also_when_it_was_merged() {
+        use crate::imaging::synthetic::Scene;
+        let frame = |first: [f64; 2], seed: u64| {
+            Scene::new(640, 480)
+                .background(8.0, [0.0, 0.0])
+                .gaussian([470.0, 260.0], 45.0, 140.0)
+                .gaussian([90.0, 400.0], 25.0, 90.0)
+                .gaussian(first, 40.0, 150.0)
+                .noise(2.5, seed)
+                .frame()
+        };
+        // The first beam starts merged with the other one and moves clear of it.
+        let before = View::new(&frame([420.0, 230.0], 1));
+        let after = View::new(&frame([250.0, 200.0], 2));
+        let moved = motion(&before, &after, 3.0, None, None);
+        let to = moved.to.expect("it shows where it went");
+        assert!(to.whole, "{to:?}");
+        assert!(distance(to.beam.centre, [250.0, 200.0]) < 0.5, "{to:?}");
+        let from = moved.from.expect("and where it was");
+        assert!(!from.whole, "it was merged with the other beam: {from:?}");
+        // A short move: both places overlap, the detections are still measured whole.
+        let nearby = View::new(&frame([290.0, 215.0], 3));
+        let short = motion(&after, &nearby, 3.0, None, None);
+        let [from, to] = [short.from.unwrap(), short.to.unwrap()];
+        assert!(from.whole && to.whole, "{short:?}");
+        assert!(
+            distance(from.beam.centre, [250.0, 200.0]) < 0.5,
+            "{short:?}"
+        );
+        assert!(distance(to.beam.centre, [290.0, 215.0]) < 0.5, "{short:?}");
+        // Nothing moved.
+        let again = View::new(&frame([290.0, 215.0], 4));
+        assert_eq!(motion(&nearby, &again, 3.0, None, None), Motion::default());
+    }
+}

@@ -1,0 +1,395 @@
+//! Driving a spot to a target with a two-axis relative actuator whose response is not
+//! known: a trust-region servo. Two probes from the best tilt so far (one per axis) give
+//! the response, then Newton steps from the best tilt, no longer than a trust radius that
+//! grows after a step that brought the spot closer and shrinks after one that did not
+//! (the next step starts from the best tilt again), refined by Broyden updates on whole
+//! spots. When the sensor's edge cuts the spot, what shows of it moves the right way but
+//! less than the beam across the edge: the response is then taken as the rotation (or
+//! mirror image) that best fits the two probes, at the larger of their scales, because a
+//! mount's two tilt axes deflect the beam at right angles; it serves until the spot shows
+//! whole, when the probes are made again. A probe that lost the spot is tried the other
+//! way, then shorter; one that hardly moved it, longer.
+
+use nalgebra::Matrix2;
+
+use super::model::{Affine, Vec2, distance};
+
+/// A cut spot counts as this many image shorter sides farther than any whole one, less
+/// the share of a whole spot's light it shows.
+const CUT_PENALTY_SIDES: f64 = 1.0;
+
+/// A probe that moved the spot less than this share of the image's shorter side is grown.
+const MIN_MOVE_SHARE: f64 = 0.03;
+
+/// Growth (and shrinking) of probes and of the trust radius.
+const GROWTH: f64 = 2.0;
+
+/// The trust radius starts at this many probe lengths.
+const START_RADIUS_PROBES: f64 = 4.0;
+
+/// Where the spot showed.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Spot {
+    /// Its centre (for a cut spot, its rough place).
+    pub at: Vec2,
+    /// Whole: not cut by the sensor's edge.
+    pub whole: bool,
+    /// Its light.
+    pub signal: f64,
+}
+
+/// The best tilt so far and what it showed.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Best {
+    pub tilt: Vec2,
+    pub spot: Spot,
+    error: f64,
+}
+
+/// What the last command was.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Pending {
+    Nothing,
+    Probe {
+        axis: usize,
+        sign: f64,
+        flipped: bool,
+    },
+    Step,
+}
+
+/// The servo of one station.
+#[derive(Clone, Debug)]
+pub struct Servo {
+    best: Option<Best>,
+    /// The response (px per step, columns per axis), once known.
+    gain: Option<[[f64; 2]; 2]>,
+    /// The response came from cut spots: probe again once the spot shows whole.
+    rough: bool,
+    /// Each axis's probed response, and whether a cut spot took part.
+    columns: [Option<(Vec2, bool)>; 2],
+    probe: f64,
+    radius: f64,
+    /// Shortest and longest probe or step, steps.
+    bounds: Vec2,
+    pending: Pending,
+    /// The last tilt and spot seen, for Broyden updates.
+    last: Option<(Vec2, Spot)>,
+    /// The most light a spot showed, for how much of a cut one shows.
+    brightest: f64,
+}
+
+impl Servo {
+    /// A servo whose probes start at `probe` steps within `bounds`, with a response when
+    /// one is known beforehand.
+    pub fn new(probe: f64, bounds: Vec2, gain: Option<[[f64; 2]; 2]>) -> Self {
+        let probe = probe.clamp(bounds[0], bounds[1]);
+        Self {
+            best: None,
+            gain,
+            rough: false,
+            columns: [None; 2],
+            probe,
+            radius: (START_RADIUS_PROBES * probe).clamp(bounds[0], bounds[1]),
+            bounds,
+            pending: Pending::Nothing,
+            last: None,
+            brightest: 0.0,
+        }
+    }
+
+    pub fn best(&self) -> Option<Best> {
+        self.best
+    }
+
+    /// The response, when it was measured on whole spots.
+    pub fn gain(&self) -> Option<[[f64; 2]; 2]> {
+        self.gain.filter(|_| !self.rough)
+    }
+
+    /// How far a spot is from `target`, as the servo ranks them: a whole spot by its
+    /// distance; a cut one behind every whole one, by how little of it shows.
+    fn error(&self, spot: &Spot, target: Vec2, side: f64) -> f64 {
+        if spot.whole {
+            distance(spot.at, target)
+        } else {
+            let shows = (spot.signal / self.brightest.max(1e-9)).min(1.0);
+            CUT_PENALTY_SIDES * side * (2.0 - shows)
+        }
+    }
+
+    /// Learns from what the last command showed at `tilt` (`seen`: where the spot is, if it
+    /// shows), for `target` on an image whose shorter side is `side`.
+    pub fn observe(&mut self, tilt: Vec2, seen: Option<Spot>, target: Vec2, side: f64) {
+        if let Some(s) = seen {
+            self.brightest = self.brightest.max(s.signal);
+        }
+        if let Some(best) = self.best {
+            // The yardstick of cut spots may have grown since.
+            let error = self.error(&best.spot, target, side);
+            self.best = Some(Best { error, ..best });
+        }
+        match (self.pending, seen, self.best) {
+            (
+                Pending::Probe {
+                    axis,
+                    sign,
+                    flipped,
+                },
+                None,
+                _,
+            ) => {
+                // Lost: the other way, then shorter.
+                self.pending = Pending::Probe {
+                    axis,
+                    sign: -sign,
+                    flipped: true,
+                };
+                if flipped {
+                    self.probe = (self.probe / GROWTH).max(self.bounds[0]);
+                }
+                return;
+            }
+            (Pending::Probe { axis, .. }, Some(s), Some(best)) => {
+                let du = tilt[axis] - best.tilt[axis];
+                if distance(s.at, best.spot.at) < MIN_MOVE_SHARE * side {
+                    self.probe = (self.probe * GROWTH).min(self.bounds[1]);
+                } else if du.abs() > 0.5 {
+                    let column = [
+                        (s.at[0] - best.spot.at[0]) / du,
+                        (s.at[1] - best.spot.at[1]) / du,
+                    ];
+                    self.columns[axis] = Some((column, !(s.whole && best.spot.whole)));
+                }
+                if let [Some((c0, r0)), Some((c1, r1))] = self.columns
+                    && self.gain.is_none()
+                {
+                    let measured = [[c0[0], c1[0]], [c0[1], c1[1]]];
+                    self.rough = r0 || r1;
+                    self.gain = Some(if self.rough {
+                        rotation_fit(measured)
+                    } else {
+                        measured
+                    });
+                }
+            }
+            (Pending::Step, _, _) => {
+                if let (Some((before, was)), Some(now), Some(gain)) =
+                    (self.last, seen, &mut self.gain)
+                    && was.whole
+                    && now.whole
+                {
+                    broyden(gain, before, was.at, tilt, now.at);
+                }
+            }
+            _ => {}
+        }
+        let better = match (error(self, seen, target, side), self.best) {
+            (Some(e), Some(best)) => e < best.error,
+            (Some(_), None) => true,
+            (None, _) => false,
+        };
+        if let (true, Some(spot)) = (better, seen) {
+            let error = self.error(&spot, target, side);
+            if self.rough && spot.whole {
+                // Shows whole now: measure the response properly from here.
+                self.gain = None;
+                self.rough = false;
+                self.columns = [None; 2];
+            }
+            self.best = Some(Best { tilt, spot, error });
+            if self.pending == Pending::Step {
+                self.radius = (self.radius * GROWTH).min(self.bounds[1]);
+            }
+        } else if self.pending == Pending::Step {
+            self.radius = (self.radius / GROWTH).max(self.bounds[0]);
+        }
+        if let Some(s) = seen {
+            self.last = Some((tilt, s));
+        }
+    }
+
+    /// The next tilt: a probe of an axis whose response is not known yet, or a Newton step
+    /// towards `target` from the best tilt; `None` before the spot was ever seen.
+    pub fn next(&mut self, target: Vec2) -> Option<Vec2> {
+        let best = self.best?;
+        match self.gain {
+            None => {
+                let axis = usize::from(self.columns[0].is_some());
+                let (sign, flipped) = match self.pending {
+                    Pending::Probe {
+                        axis: a,
+                        sign,
+                        flipped,
+                    } if a == axis => (sign, flipped),
+                    _ => (1.0, false),
+                };
+                self.pending = Pending::Probe {
+                    axis,
+                    sign,
+                    flipped,
+                };
+                let mut tilt = best.tilt;
+                tilt[axis] += sign * self.probe;
+                Some(tilt)
+            }
+            Some(gain) => {
+                let step = Affine {
+                    offset: best.spot.at,
+                    gain,
+                }
+                .solve(target)?;
+                let length = step[0].hypot(step[1]);
+                if length < self.bounds[0] && !best.spot.whole {
+                    // A cut spot the response says is where it should be: the response is
+                    // wrong. Probe again from here.
+                    self.gain = None;
+                    self.rough = false;
+                    self.columns = [None; 2];
+                    self.pending = Pending::Nothing;
+                    return self.next(target);
+                }
+                let scale = (self.radius / length.max(1e-9)).min(1.0);
+                self.pending = Pending::Step;
+                Some([
+                    best.tilt[0] + step[0] * scale,
+                    best.tilt[1] + step[1] * scale,
+                ])
+            }
+        }
+    }
+}
+
+/// The servo's ranking of what was seen (`None` when nothing was).
+fn error(servo: &Servo, seen: Option<Spot>, target: Vec2, side: f64) -> Option<f64> {
+    seen.map(|s| servo.error(&s, target, side))
+}
+
+/// The rotation or mirror image, scaled, nearest to a measured response (columns per
+/// axis): the two tilt axes of a mount deflect the beam at right angles by about the same
+/// amount, so what the probes of a cut spot show (the right way, foreshortened across the
+/// edge) fixes the orientation, and the less foreshortened probe the scale.
+fn rotation_fit(measured: [[f64; 2]; 2]) -> [[f64; 2]; 2] {
+    let m = Matrix2::new(
+        measured[0][0],
+        measured[0][1],
+        measured[1][0],
+        measured[1][1],
+    );
+    let svd = m.svd(true, true);
+    let (Some(u), Some(v_t)) = (svd.u, svd.v_t) else {
+        return measured;
+    };
+    let scale = svd.singular_values.max();
+    let q = u * v_t * scale;
+    [[q[(0, 0)], q[(0, 1)]], [q[(1, 0)], q[(1, 1)]]]
+}
+
+/// Broyden's update of `gain` from a move of `du` (from tilt `from` to `to`) that moved
+/// the spot from `was` to `now`.
+fn broyden(gain: &mut [[f64; 2]; 2], from: Vec2, was: Vec2, to: Vec2, now: Vec2) {
+    let du = [to[0] - from[0], to[1] - from[1]];
+    let norm = du[0] * du[0] + du[1] * du[1];
+    if norm < 1.0 {
+        return;
+    }
+    let dp = [now[0] - was[0], now[1] - was[1]];
+    for (r, row) in gain.iter_mut().enumerate() {
+        let miss = dp[r] - (row[0] * du[0] + row[1] * du[1]);
+        row[0] += miss * du[0] / norm;
+        row[1] += miss * du[1] / norm;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A station whose spot sits at `offset + gain · tilt`, on a 640 x 480 sensor; beyond
+    /// its border the spot is lost, within 100 px of it cut.
+    struct Bench {
+        offset: Vec2,
+        gain: [[f64; 2]; 2],
+    }
+
+    impl Bench {
+        fn spot(&self, tilt: Vec2) -> Option<Spot> {
+            let at = Affine {
+                offset: self.offset,
+                gain: self.gain,
+            }
+            .predict(tilt);
+            let inside = at[0].min(640.0 - at[0]).min(at[1]).min(480.0 - at[1]);
+            // What shows of a cut spot: less the farther out it is.
+            (inside > -60.0).then_some(Spot {
+                at,
+                whole: inside > 100.0,
+                signal: (inside + 60.0).min(160.0),
+            })
+        }
+    }
+
+    fn run(bench: &Bench, probe: f64) -> (usize, Vec2) {
+        let mut servo = Servo::new(probe, [50.0, 20_000.0], None);
+        let target = [320.0, 240.0];
+        let mut tilt = [0.0, 0.0];
+        for step in 1..=30 {
+            servo.observe(tilt, bench.spot(tilt), target, 480.0);
+            if let Some(best) = servo.best()
+                && best.spot.whole
+                && distance(best.spot.at, target) < 1.0
+            {
+                return (step, best.spot.at);
+            }
+            tilt = servo.next(target).expect("the spot shows at the start");
+        }
+        panic!("not centred in 30 steps: {:?}", servo.best());
+    }
+
+    #[test]
+    fn centres_a_spot_whatever_the_response_turns_and_scales() {
+        for gain in [
+            [[0.033, 0.0], [0.0, 0.023]],
+            [[0.0, -0.03], [0.025, 0.0]],
+            [[-0.1, 0.02], [0.03, 0.08]],
+            [[0.008, 0.001], [-0.002, -0.006]],
+        ] {
+            let bench = Bench {
+                offset: [150.0, 330.0],
+                gain,
+            };
+            let (steps, at) = run(&bench, 1875.0);
+            assert!(steps <= 12, "{gain:?}: {steps} steps, at {at:?}");
+        }
+    }
+
+    #[test]
+    fn a_probe_that_loses_the_spot_is_tried_the_other_way() {
+        // The first probe (+axis 0) throws the spot off the sensor's right edge.
+        let bench = Bench {
+            offset: [560.0, 240.0],
+            gain: [[0.05, 0.0], [0.0, 0.05]],
+        };
+        let (steps, _) = run(&bench, 3000.0);
+        assert!(steps <= 12, "{steps}");
+    }
+
+    #[test]
+    fn a_foreshortened_response_is_fitted_as_a_turned_one() {
+        // Turned 30 degrees, scale 0.03; the second axis seen at a third across an edge.
+        let (s, c) = 30f64.to_radians().sin_cos();
+        let true_gain = [[0.03 * c, -0.03 * s], [0.03 * s, 0.03 * c]];
+        let measured = [
+            [true_gain[0][0], true_gain[0][1] / 3.0],
+            [true_gain[1][0], true_gain[1][1] / 3.0],
+        ];
+        let fitted = rotation_fit(measured);
+        let worst = (0..2)
+            .flat_map(|r| (0..2).map(move |c| (r, c)))
+            .map(|(r, c)| (fitted[r][c] - true_gain[r][c]).abs())
+            .fold(0.0, f64::max);
+        assert!(worst < 0.01, "{fitted:?} vs {true_gain:?}");
+        // The signs (orientation) are right.
+        assert!(fitted[0][0] > 0.0 && fitted[0][1] < 0.0 && fitted[1][1] > 0.0);
+    }
+}

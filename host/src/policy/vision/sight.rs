@@ -1,0 +1,177 @@
+//! What the images teach the agent about the bench, and whether a detected beam is a
+//! sighting a model can be fitted to. [`Scales`] learns the beams' sizes, how far
+//! stationary features wander between frames (jitter) and how precise a centre is, so
+//! that every threshold is a multiple of something measured on this bench, not a pixel
+//! count of one camera. [`sight`] calls a beam clean when it is whole, compact, alone and
+//! of its known size; a beam the border cuts counts when a Gaussian fits it well.
+
+use super::model::{Sighting, Vec2, distance};
+use super::see::View;
+use crate::imaging::Beam;
+
+/// Before any beam was measured, a beam is taken to be this share of the image's shorter
+/// side (only used until the first view with a beam).
+const DEFAULT_RADIUS_SHARE: f64 = 0.05;
+
+/// Until jitter has been measured, stationary features may seem to move this many beam
+/// radii between frames.
+const DEFAULT_STEADY_RADII: f64 = 0.15;
+
+/// Stationary features may seem to move this many times their measured RMS displacement.
+const STEADY_SPREAD: f64 = 4.0;
+
+/// A spot fit worse than this (RMS share of the peak) is two spots merged or not a
+/// Gaussian beam: its centre is not extrapolated.
+const MAX_MISFIT: f64 = 0.06;
+
+/// A fitted centre is trusted up to this many fitted radii outside the image.
+const MAX_EXTRAPOLATION: f64 = 0.4;
+
+/// A beam larger than this many times its known radius has merged with something.
+const MAX_SIZE_RATIO: f64 = 1.6;
+
+/// A beam closer than this many summed radii to another known beam overlaps it.
+const OVERLAP_RADII: f64 = 1.2;
+
+/// What the images taught about this bench.
+#[derive(Clone, Debug, Default)]
+pub struct Scales {
+    /// Radii of cleanly seen beams, per feature.
+    sizes: [Vec<f64>; 2],
+    /// The median radius of the beams in the views so far.
+    typical: Option<f64>,
+    /// The shorter image side, px.
+    side: f64,
+    /// Displacements of stationary features between frames, px.
+    steady: Vec<f64>,
+    /// The median centre uncertainty of beams seen.
+    uncertainty: Option<f64>,
+}
+
+impl Scales {
+    /// Learns the image size, the typical beam size and centre uncertainty from a view.
+    pub fn learn_view(&mut self, view: &View) {
+        let [w, h] = view.size();
+        self.side = w.min(h);
+        let mut radii: Vec<f64> = view.beams.iter().map(Beam::size).collect();
+        if let Some(r) = median(&mut radii)
+            && self.typical.is_none()
+        {
+            self.typical = Some(r);
+        }
+        let mut spreads: Vec<f64> = view.beams.iter().map(|b| b.uncertainty).collect();
+        if let Some(u) = median(&mut spreads) {
+            self.uncertainty = Some(u);
+        }
+    }
+
+    /// Learns the size of feature `k` from a clean sighting.
+    pub fn learn_size(&mut self, k: usize, radius: f64) {
+        self.sizes[k].push(radius);
+    }
+
+    /// Learns the jitter from the displacement of features that stayed between two views.
+    pub fn learn_steady(&mut self, pairs: &[(usize, usize)], before: &[Beam], after: &[Beam]) {
+        for &(i, j) in pairs {
+            self.steady
+                .push(distance(before[i].centre, after[j].centre));
+        }
+    }
+
+    /// The radius of feature `k`, px: measured, else the other feature's, else the
+    /// typical beam in view, else a share of the image.
+    pub fn radius(&self, k: usize) -> f64 {
+        let mut own = self.sizes[k].clone();
+        let mut other = self.sizes[1 - k].clone();
+        median(&mut own)
+            .or_else(|| median(&mut other))
+            .or(self.typical)
+            .unwrap_or(DEFAULT_RADIUS_SHARE * self.side.max(1.0))
+    }
+
+    /// The known radius of feature `k`, when it was seen cleanly.
+    fn known_radius(&self, k: usize) -> Option<f64> {
+        median(&mut self.sizes[k].clone())
+    }
+
+    /// The RMS displacement of stationary features between frames, px, once measured: from
+    /// the median displacement (a pair that was not stationary after all does not count),
+    /// which for Gaussian jitter in two dimensions is 0.83 times the RMS.
+    fn jitter(&self) -> Option<f64> {
+        median(&mut self.steady.clone()).map(|m| m / 0.833)
+    }
+
+    /// How far a stationary feature may seem to move between two frames, px.
+    pub fn steady(&self) -> f64 {
+        let default = DEFAULT_STEADY_RADII * self.radius(0).min(self.radius(1));
+        match self.jitter() {
+            Some(rms) => (STEADY_SPREAD * rms).max(1.0),
+            None => default,
+        }
+    }
+
+    /// The scatter of one measured centre, px: the jitter of one frame (the RMS
+    /// displacement between two frames over √2) and the detector's own uncertainty.
+    pub fn position_noise(&self) -> f64 {
+        let jitter = self
+            .jitter()
+            .map_or(0.0, |rms| rms / std::f64::consts::SQRT_2);
+        jitter.hypot(self.uncertainty.unwrap_or(0.0))
+    }
+
+    /// What the agent learned about the bench, for the transcript.
+    pub fn claims(&self) -> serde_json::Value {
+        serde_json::json!({
+            "beam_radius_px": [self.known_radius(0), self.known_radius(1)],
+            "jitter_rms_px": self.jitter(),
+            "steady_allowance_px": self.steady(),
+        })
+    }
+}
+
+/// The median of the values, when there are any.
+fn median(values: &mut [f64]) -> Option<f64> {
+    if values.is_empty() {
+        return None;
+    }
+    let mid = values.len() / 2;
+    Some(*values.select_nth_unstable_by(mid, f64::total_cmp).1)
+}
+
+/// How `beam`, taken for feature `k`, serves the model: clean when whole, compact, of the
+/// feature's known size and clear of `other` (another known beam's place and radius); a
+/// beam the border cuts is clean at its fitted centre when a Gaussian fits it well and
+/// the centre is not far outside.
+pub fn sight(
+    beam: &Beam,
+    view: &View,
+    scales: &Scales,
+    k: usize,
+    other: Option<(Vec2, f64)>,
+) -> Sighting {
+    let own = scales.known_radius(k);
+    let oversized = own.is_some_and(|r| beam.size() > MAX_SIZE_RATIO * r);
+    let radius = own.unwrap_or(beam.size());
+    let overlapping =
+        other.is_some_and(|(p, r)| distance(beam.centre, p) < OVERLAP_RADII * (r + radius));
+    if !beam.localised || oversized || overlapping {
+        return Sighting::Partial(beam.centre);
+    }
+    if !beam.clipped {
+        return Sighting::Clean(beam.centre);
+    }
+    let [w, h] = view.size();
+    let trusted = beam.fit.filter(|f| {
+        let outside = |c: f64, side: f64| (-c).max(c - side).max(0.0);
+        let beyond = outside(f.centre[0], w).hypot(outside(f.centre[1], h));
+        let alike = own.is_none_or(|r| (f.radius / r - 1.0).abs() < MAX_SIZE_RATIO - 1.0);
+        // Cut by two borders at once, too little of the spot shows to extrapolate.
+        let near = |c: f64, side: f64| c.min(side - c) < f.radius;
+        let corner = near(f.centre[0], w) && near(f.centre[1], h);
+        f.misfit < MAX_MISFIT && beyond < MAX_EXTRAPOLATION * f.radius && alike && !corner
+    });
+    match trusted {
+        Some(fit) => Sighting::Clean(fit.centre),
+        None => Sighting::Partial(beam.centre),
+    }
+}
