@@ -20,13 +20,18 @@ const BLOCK: usize = 4;
 const THRESHOLD_NOISES: f64 = 4.5;
 
 /// Regions whose light is below this share of the strongest region's are dropped.
-const MIN_SHARE: f64 = 0.01;
+const MIN_SHARE: f64 = 0.002;
 
 /// A region's light must exceed the noise summed over its pixels this many times.
 const MIN_SIGNIFICANCE: f64 = 8.0;
 
 /// Blocks above this share of a region's peak are its core.
 const CORE_SHARE: f32 = 0.2;
+
+/// A core found by [`Grid::split`] counts only when its peak stands this many noise
+/// deviations of a smoothed block above the core level: in heavy noise the level's contour
+/// breaks into islands that are one beam.
+const CORE_PROMINENCE_NOISES: f32 = 5.0;
 
 /// Two regions are one beam when their cores are nearer than this share of the distance
 /// between their centres (a dark node line or fringe inside one beam is narrow; the gap
@@ -218,10 +223,14 @@ impl Grid {
         out
     }
 
+    /// The noise of a smoothed block, which averages 9 * BLOCK² pixels.
+    fn smooth_noise(&self) -> f32 {
+        (self.noise / (3.0 * BLOCK as f64)) as f32
+    }
+
     /// 8-connected regions of bright smoothed blocks, with enough light to be real.
     fn regions(&self) -> Vec<Region> {
-        // The smoothed block averages 9 * BLOCK² pixels.
-        let threshold = (THRESHOLD_NOISES * self.noise / (3.0 * BLOCK as f64)) as f32;
+        let threshold = THRESHOLD_NOISES as f32 * self.smooth_noise();
         let mut seen = vec![false; self.bw * self.bh];
         let mut regions = Vec::new();
         for start in 0..seen.len() {
@@ -252,9 +261,86 @@ impl Grid {
             if light < MIN_SIGNIFICANCE * self.noise * pixels.sqrt() {
                 continue;
             }
-            regions.push(self.describe(blocks));
+            regions.extend(self.split(blocks).into_iter().map(|b| self.describe(b)));
         }
         regions
+    }
+
+    /// A region split at its cores: two beams whose faint tails touch make one region with
+    /// two cores. Each core (a connected set of blocks above [`CORE_SHARE`] of the region's
+    /// peak, of at least two blocks, whose own peak stands [`CORE_PROMINENCE_NOISES`] above
+    /// that level) takes the region's blocks nearest to it; lobes or
+    /// stripes of one beam split here are joined again by [`join_regions`].
+    fn split(&self, blocks: Vec<usize>) -> Vec<Vec<usize>> {
+        const OUTSIDE: u32 = u32::MAX;
+        const UNCLAIMED: u32 = u32::MAX - 1;
+        const FAINT_CORE: u32 = u32::MAX - 2;
+        let peak = blocks
+            .iter()
+            .map(|&b| self.smooth[b])
+            .fold(f32::MIN, f32::max);
+        let level = CORE_SHARE * peak;
+        let prominent = level + CORE_PROMINENCE_NOISES * self.smooth_noise();
+        let mut label = vec![OUTSIDE; self.bw * self.bh];
+        for &b in &blocks {
+            label[b] = UNCLAIMED;
+        }
+        let mut queue = VecDeque::new();
+        let mut cores = 0u32;
+        for &start in &blocks {
+            if label[start] != UNCLAIMED || self.smooth[start] < level {
+                continue;
+            }
+            let mut core = vec![start];
+            label[start] = cores;
+            let mut next = 0;
+            while next < core.len() {
+                let block = core[next];
+                next += 1;
+                for n in self.neighbours(block).iter() {
+                    if label[n] == UNCLAIMED && self.smooth[n] >= level {
+                        label[n] = cores;
+                        core.push(n);
+                    }
+                }
+            }
+            let core_peak = core
+                .iter()
+                .map(|&b| self.smooth[b])
+                .fold(f32::MIN, f32::max);
+            if core.len() < 2 || core_peak < prominent {
+                for &b in &core {
+                    label[b] = FAINT_CORE;
+                }
+                continue;
+            }
+            queue.extend(core);
+            cores += 1;
+        }
+        if cores < 2 {
+            return vec![blocks];
+        }
+        for &b in &blocks {
+            if label[b] == FAINT_CORE {
+                label[b] = UNCLAIMED;
+            }
+        }
+        while let Some(block) = queue.pop_front() {
+            let id = label[block];
+            for n in self.neighbours(block).iter() {
+                if label[n] == UNCLAIMED {
+                    label[n] = id;
+                    queue.push_back(n);
+                }
+            }
+        }
+        let mut parts = vec![Vec::new(); cores as usize];
+        for b in blocks {
+            if let Some(part) = parts.get_mut(label[b] as usize) {
+                part.push(b);
+            }
+        }
+        parts
     }
 
     fn describe(&self, blocks: Vec<usize>) -> Region {

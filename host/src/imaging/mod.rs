@@ -1,9 +1,10 @@
 //! Image analysis shared by calibration, bench scoring and the image-only agent: a frame's
-//! light above its background ([`Picture`]), the beams in it ([`find_beams`]), and what
-//! changed between two frames ([`changes`]).
+//! light above its background ([`Picture`]), the beams in it ([`find_beams`]), the centre of
+//! a beam's bright core ([`core_centre`]), and what changed between two frames ([`changes`]).
 
 mod beams;
 mod changes;
+mod core;
 mod gaussian;
 mod picture;
 #[cfg(test)]
@@ -13,6 +14,7 @@ mod tests;
 
 pub use beams::{Beam, find_beams};
 pub use changes::{Changes, changes};
+pub use core::core_centre;
 pub use gaussian::GaussianFit;
 pub use picture::Picture;
 

@@ -22,6 +22,9 @@ const BAND_SHARE: f64 = 0.08;
 /// A column offset smaller than this many standard errors of its estimate is noise.
 const STREAK_SIGNIFICANCE: f64 = 5.0;
 
+/// Columns averaged for a faint, wide streak.
+const STREAK_COLUMNS: usize = 9;
+
 /// A hot pixel exceeds the background by this many noise deviations ...
 const HOT_NOISES: f64 = 6.0;
 
@@ -323,7 +326,11 @@ fn least_squares_plane(cells: &[([f64; 2], f64, [usize; 4])], keep: &[bool]) -> 
 }
 
 /// Removes a constant offset from each column whose top and bottom bands both show one
-/// (a read-out smear streak runs the whole height; a beam rarely fills both bands).
+/// more than the typical column does (a read-out smear streak runs the whole height; a beam
+/// rarely fills both bands). A
+/// streak as wide as a beam is faint per column but clear over a few neighbouring columns,
+/// so an offset counts when it is significant in its own column or on average over
+/// [`STREAK_COLUMNS`] columns around it.
 fn remove_column_streaks(light: &mut [f32], width: usize, height: usize, noise: f64) {
     let band = ((height as f64 * BAND_SHARE) as usize)
         .max(2)
@@ -341,20 +348,43 @@ fn remove_column_streaks(light: &mut [f32], width: usize, height: usize, noise: 
             bottom[x * band + y] = light[(height - band + y) * width + x];
         }
     }
+    // Each band's column medians, relative to the band's typical column: a streak is a
+    // few columns, an offset shared by all of them is left to the background.
+    let relative = |band_pixels: &mut [f32]| {
+        let mut medians: Vec<f32> = band_pixels.chunks_exact_mut(band).map(median_f32).collect();
+        let typical = median_f32(&mut medians.clone());
+        medians.iter_mut().for_each(|m| *m -= typical);
+        medians
+    };
+    let (top, bottom) = (relative(&mut top), relative(&mut bottom));
     let offsets: Vec<f32> = top
-        .chunks_exact_mut(band)
-        .zip(bottom.chunks_exact_mut(band))
+        .into_iter()
+        .zip(bottom)
         .map(|(t, b)| {
-            let (t, b) = (median_f32(t), median_f32(b));
             // The smaller offset, taken only when both bands agree on its sign.
-            let offset = if t > 0.0 && b > 0.0 {
+            if t > 0.0 && b > 0.0 {
                 t.min(b)
             } else if t < 0.0 && b < 0.0 {
                 t.max(b)
             } else {
                 0.0
-            };
-            if offset.abs() > limit { offset } else { 0.0 }
+            }
+        })
+        .collect();
+    let half = STREAK_COLUMNS / 2;
+    let wide_limit = limit / (STREAK_COLUMNS as f32).sqrt();
+    let offsets: Vec<f32> = (0..width)
+        .map(|x| {
+            let own = offsets[x];
+            let around = &offsets[x.saturating_sub(half)..(x + half + 1).min(width)];
+            let mean = around.iter().sum::<f32>() / around.len() as f32;
+            if own.abs() > limit {
+                own
+            } else if mean.abs() > wide_limit {
+                mean
+            } else {
+                0.0
+            }
         })
         .collect();
     if offsets.iter().all(|&o| o == 0.0) {

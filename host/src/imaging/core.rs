@@ -1,0 +1,49 @@
+//! The centre of a beam's bright core: the centroid of the light above a share of the
+//! beam's peak, around the beam. Faint neighbours (a ghost on a bright beam's halo, a stray
+//! spot inside its wide window) lie below that level and pull nothing; a saturated core's
+//! flat top is symmetric, so its centre holds.
+
+use super::{Beam, Picture};
+
+/// Recentring passes: the core window follows the core's own centroid.
+const PASSES: usize = 3;
+
+/// Half the side of the window searched, in beam radii.
+const WINDOW_RADII: f64 = 1.5;
+
+/// The centroid of `beam`'s light above `share` of its peak, weighted by the light above
+/// that level; `None` when nothing there is above it.
+pub fn core_centre(picture: &Picture, beam: &Beam, share: f64) -> Option<[f64; 2]> {
+    let (w, h) = (picture.width(), picture.height());
+    let level = (share * beam.peak) as f32;
+    let half = WINDOW_RADII * beam.size().max(1.0);
+    let light = picture.light();
+    let mut centre = beam.centre;
+    for _ in 0..PASSES {
+        let span = |c: f64, side: usize| {
+            let lo = (c - half).floor().max(0.0) as usize;
+            let hi = ((c + half).ceil().max(0.0) as usize).min(side);
+            lo..hi
+        };
+        let (mut s, mut sx, mut sy) = (0.0f64, 0.0f64, 0.0f64);
+        for y in span(centre[1], h) {
+            let row = &light[y * w..(y + 1) * w];
+            let (mut rs, mut rsx) = (0f32, 0f32);
+            for x in span(centre[0], w) {
+                let above = row[x] - level;
+                if above > 0.0 {
+                    rs += above;
+                    rsx += above * x as f32;
+                }
+            }
+            s += f64::from(rs);
+            sx += f64::from(rsx);
+            sy += f64::from(rs) * y as f64;
+        }
+        if s <= 0.0 {
+            return None;
+        }
+        centre = [sx / s + 0.5, sy / s + 0.5];
+    }
+    Some(centre)
+}
