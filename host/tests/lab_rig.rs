@@ -70,8 +70,31 @@ async fn keyed_client(url: &str) -> optalign::link::Client {
 }
 
 /// Compensation equal to the true dead band, as after `optalign calibrate backlash --write`.
-async fn compensate(url: &str, axes: u8, backlash: u16) {
+/// A keyed client that controls the peer: a client dropped just before may hold control
+/// until the peer notices it left, so the first controlling request is retried while the
+/// peer answers busy.
+async fn controlling_client(url: &str) -> optalign::link::Client {
     let client = keyed_client(url).await;
+    for _ in 0..100 {
+        let config = client.get_config(0).await.unwrap();
+        match client
+            .command_ok(optalign_protocol::Command::SetConfig { axis: 0, config })
+            .await
+        {
+            Err(e) if e.code() == Some(optalign_protocol::ErrorCode::BUSY) => {
+                tokio::time::sleep(std::time::Duration::from_millis(50)).await;
+            }
+            other => {
+                other.unwrap();
+                return client;
+            }
+        }
+    }
+    panic!("the peer never released control");
+}
+
+async fn compensate(url: &str, axes: u8, backlash: u16) {
+    let client = controlling_client(url).await;
     for axis in 0..axes {
         let mut config = client.get_config(axis).await.unwrap();
         config.backlash = backlash;
@@ -278,7 +301,7 @@ mirror_2_axis_2 = {{ controller = "mounts", axis = 3 }}
 
 /// Moves the simulated mounts so mirror 1's beam is centred and mirror 2's is off-screen.
 async fn stage_michelson(url: &str, offsets: [i32; 4]) {
-    let client = keyed_client(url).await;
+    let client = controlling_client(url).await;
     let targets = [-offsets[0], -offsets[1], -offsets[2] + 9000, -offsets[3]];
     let values: Vec<optalign_protocol::AxisValue> = targets
         .iter()

@@ -12,9 +12,14 @@
 use optalign_optics::Frame;
 
 use super::model::{SAME_STEP, Sighting, Tracker, Vec2, distance};
-use super::see::View;
-use crate::imaging::{Beam, changes};
+use super::see::{Seen, View, alike, motion, stationary_pairs};
+use super::sight::{Scales, sight};
+use crate::imaging::core_centre;
 use crate::task::{Action, CavityLimits};
+
+/// The secondary is feature 0 of the learned scales, the primary feature 1.
+const SECONDARY: usize = 0;
+const PRIMARY: usize = 1;
 
 /// The first probe moves an axis by this share of its command range.
 const CAUTIOUS_SHARE: f64 = 1.0 / 32.0;
@@ -33,8 +38,18 @@ const PROBE_RADII: f64 = 4.0;
 const RESOLVED_RADII: f64 = 2.0;
 const PROBE_GROWTH: f64 = 3.0;
 
+/// A change whose second-moment radius collapses below this, px, is a speck of a few
+/// pixels (a stray spot's flicker, a hot pixel), never a measurable beam.
+const MIN_CHANGE_RADIUS_PX: f64 = 1.0;
+
+/// A change larger than this many of the secondary's known radii is not the secondary.
+const MAX_SIZE_RATIO: f64 = 1.6;
+
+/// A secondary that moved farther than this many of its radii shows whole in the change.
+const APART_RADII: f64 = 2.0;
+
 /// Within this many primary radii of the target the secondary is (partly) hidden.
-const HIDDEN_RADII: f64 = 1.9;
+const HIDDEN_RADII: f64 = 1.2;
 
 /// The check point sits this many secondary radii outside the hidden zone.
 const CHECK_CLEARANCE_RADII: f64 = 1.5;
@@ -42,6 +57,9 @@ const CHECK_CLEARANCE_RADII: f64 = 1.5;
 /// A check sighting within this many secondary radii of the prediction confirms the map
 /// (or within the position noise, when that is larger).
 const CONFIRM_RADII: f64 = 0.4;
+
+/// The primary's centre is the centroid of its light above this share of its peak.
+const PRIMARY_CORE_SHARE: f64 = 0.5;
 
 /// A change farther than this many radii from the prediction is not the secondary.
 const MATCH_RADII: f64 = 3.0;
@@ -66,9 +84,11 @@ pub struct CavityAgent {
     previous: Option<View>,
     /// The primary's centre and radius, px, measured on the first frame.
     primary: Option<(Vec2, f64)>,
-    /// The secondary's radius, px, once seen.
-    secondary_radius: Option<f64>,
+    /// The beams' sizes, the jitter and the position noise, as measured.
+    scales: Scales,
     last: Step,
+    /// Whether the last check found the secondary at all.
+    last_check_seen: bool,
     checks: usize,
     spans: Vec2,
 }
@@ -83,8 +103,9 @@ impl CavityAgent {
             before: [0.0; 2],
             previous: None,
             primary: None,
-            secondary_radius: None,
+            scales: Scales::default(),
             last: Step::Start,
+            last_check_seen: false,
             checks: 0,
             spans,
         }
@@ -93,7 +114,12 @@ impl CavityAgent {
     /// The next action for a new frame; `rejected` means nothing moved.
     pub fn decide(&mut self, frame: &Frame, rejected: bool, remaining: usize) -> Action {
         let view = View::new(frame);
+        self.scales.learn_view(&view);
         let (target, primary_radius) = *self.primary.get_or_insert_with(|| primary(&view));
+        if self.scales.known_radius(PRIMARY).is_none() {
+            self.scales.learn_size(PRIMARY, primary_radius);
+        }
+        self.tracker.noise = self.scales.model_noise();
         let confirmed = !rejected && self.observe(&view, target, primary_radius);
         self.previous = Some(view);
         let Some(_) = self.tracker.model() else {
@@ -113,11 +139,21 @@ impl CavityAgent {
             .tracker
             .command_for(target, self.command)
             .unwrap_or(self.command);
-        if confirmed || remaining <= 2 || self.checks >= MAX_CHECKS {
+        let settled = self.checks >= MAX_CHECKS && self.last_check_seen;
+        if confirmed || remaining <= 2 || settled {
             return self.send(aim, Step::Check(None), true);
         }
+        if matches!(self.last, Step::Check(_)) && !self.last_check_seen {
+            // The check lost the secondary: probe again from its last clean sighting.
+            let from = self
+                .tracker
+                .clean
+                .last()
+                .map_or(self.command, |s| s.command);
+            return self.send(self.tracker.next_probe(from), Step::Probe, false);
+        }
         // Alternate the side of the check point so the fit sees the target from around it.
-        let radius = self.secondary_radius.unwrap_or(primary_radius / 2.0);
+        let radius = self.scales.radius(SECONDARY);
         let clear = HIDDEN_RADII * primary_radius + CHECK_CLEARANCE_RADII * radius;
         let sides = [[1.0, 0.0], [0.0, 1.0], [-1.0, 0.0], [0.0, -1.0]];
         let point = |side: Vec2| [target[0] + clear * side[0], target[1] + clear * side[1]];
@@ -159,8 +195,8 @@ impl CavityAgent {
             "phase": phase,
             "target_px": self.primary.map(|p| p.0),
             "primary_radius_px": self.primary.map(|p| p.1),
-            "secondary_radius_px": self.secondary_radius,
             "secondary": self.tracker.claims(self.command),
+            "bench": self.scales.claims(),
         })
     }
 
@@ -202,59 +238,90 @@ impl CavityAgent {
         if self.last == Step::Start {
             return false;
         }
-        let moved = changes(&before.picture, &view.picture);
-        let hidden = HIDDEN_RADII * primary_radius;
-        let visible = |b: &&Beam| distance(b.centre, target) > hidden;
+        let pairs = stationary_pairs(&before.beams, &view.beams, self.scales.steady());
+        self.scales.learn_steady(&pairs, &before.beams, &view.beams);
         let expected = self.tracker.predict_here(self.command);
-        let radius = self.secondary_radius.unwrap_or(primary_radius / 2.0);
-        let pick = |blobs: &[Beam]| -> Option<Beam> {
-            let blobs = blobs.iter().filter(visible);
-            match expected {
-                Some(p) => blobs
-                    .filter(|b| distance(b.centre, p) < MATCH_RADII * radius.max(b.size()))
-                    .min_by(|a, b| distance(a.centre, p).total_cmp(&distance(b.centre, p)))
-                    .copied(),
-                None => blobs.max_by(|a, b| a.signal.total_cmp(&b.signal)).copied(),
-            }
+        let moved = motion(&before, view, self.scales.steady(), expected, None);
+        let radius = self.scales.radius(SECONDARY);
+        let hidden = HIDDEN_RADII * primary_radius;
+        // The secondary shows outside the primary's footprint, and where it went near
+        // where the map expects it once there is a map.
+        let outside = |centre: Vec2| distance(centre, target) > hidden;
+        let expected_near = |centre: Vec2| {
+            expected.is_none_or(|p| distance(centre, p) < MATCH_RADII * radius.max(hidden))
         };
-        let appeared = pick(&moved.appeared);
-        let vanished = pick(&moved.vanished);
-        let resolved = match (appeared, vanished) {
-            (Some(a), Some(v)) => {
-                distance(a.centre, v.centre) > RESOLVED_RADII * a.size().max(v.size())
-            }
-            _ => true,
+        // The secondary keeps its size and light: a change unlike it (a stray spot's
+        // flicker, a speck) is not the secondary.
+        let known = self.scales.known_radius(SECONDARY);
+        let like_secondary = |s: &Seen| {
+            s.change.size() >= MIN_CHANGE_RADIUS_PX
+                && known.is_none_or(|r| (0.5..MAX_SIZE_RATIO).contains(&(s.change.size() / r)))
         };
-        if !resolved {
+        let appeared = moved.to.filter(|s| {
+            outside(s.beam.centre) && expected_near(s.beam.centre) && like_secondary(s)
+        });
+        let vanished = moved.from.filter(|s| {
+            outside(s.beam.centre)
+                && like_secondary(s)
+                && appeared.is_none_or(|a| alike(&a.change, &s.change))
+        });
+        if let (Some(a), Some(v)) = (appeared, vanished)
+            && distance(a.beam.centre, v.beam.centre)
+                <= RESOLVED_RADII * a.beam.size().max(v.beam.size())
+        {
             // Moved too little to tell where it went: a longer probe next time.
             let [lo, hi] = [0, 1].map(|i| PROBE_SHARES[i] * self.spans[0].min(self.spans[1]));
             let probe = self.tracker.probe.map(|p| (p * PROBE_GROWTH).clamp(lo, hi));
             self.tracker.set_probe(probe);
             return false;
         }
-        let judge = |b: &Beam| {
-            if b.clipped || !b.localised {
-                Sighting::Partial(b.centre)
-            } else {
-                Sighting::Clean(b.centre)
+        let other = Some((target, primary_radius));
+        // Moved clear of its other place, the change is the whole secondary alone on a
+        // cancelled background: measured there, the primary's halo, rings and ghosts under
+        // it do not pull its centre, and it shows where the view's detection merged it.
+        let apart = matches!((appeared, vanished), (Some(a), Some(v))
+            if distance(a.change.centre, v.change.centre)
+                > APART_RADII * a.change.size().max(v.change.size()));
+        let judge = |seen: &Seen, view: &View| {
+            let own = || {
+                if seen.whole {
+                    sight(&seen.beam, view, &self.scales, SECONDARY, other)
+                } else {
+                    Sighting::Partial(seen.beam.centre)
+                }
+            };
+            if !apart {
+                return own();
+            }
+            match sight(&seen.change, view, &self.scales, SECONDARY, other) {
+                Sighting::Partial(_) => own(),
+                change => change,
             }
         };
+        let seen_to = appeared.map(|s| judge(&s, view));
+        let seen_from = vanished.map(|s| judge(&s, &before));
         let untried = !self.tracker.tried_within(self.before, SAME_STEP);
-        self.tracker
-            .file(self.command, appeared.as_ref().map(judge));
-        if let (true, Some(v)) = (untried, vanished.as_ref()) {
-            self.tracker.file_before_move(self.before, judge(v));
+        self.tracker.file(self.command, seen_to);
+        if let (true, Some(v)) = (untried, seen_from) {
+            self.tracker.file_before_move(self.before, v);
         }
-        if let Some(b) = appeared.filter(|b| !b.clipped) {
-            self.secondary_radius = Some(b.size());
-            self.size_probe(b.size(), vanished.as_ref(), &b);
+        // Sizes compare on the changes, the secondary alone on a cancelled background.
+        if let (true, Some(Sighting::Clean(_)), Some(a), Some(v)) =
+            (apart, seen_to, appeared, vanished)
+            && !a.beam.clipped
+        {
+            self.scales.learn_size(SECONDARY, a.change.size());
+            self.size_probe(a.change.size(), v.beam.centre, a.beam.centre);
         }
         self.tracker.estimate_lost_motion();
-        match (self.last, appeared.map(|b| judge(&b))) {
-            (Step::Check(Some(p)), Some(Sighting::Clean(centre))) => {
+        let Step::Check(predicted) = self.last else {
+            return false;
+        };
+        self.last_check_seen = seen_to.and_then(Sighting::fit_centre).is_some();
+        match (predicted, seen_to) {
+            (Some(p), Some(Sighting::Clean(centre))) => {
                 distance(p, centre)
-                    < (CONFIRM_RADII * radius)
-                        .max(3.0 * view.beams.first().map_or(0.0, |b| b.uncertainty))
+                    < (CONFIRM_RADII * radius).max(3.0 * self.scales.position_noise())
             }
             _ => false,
         }
@@ -262,15 +329,12 @@ impl CavityAgent {
 
     /// Sizes later probes from the response one probe showed (the secondary moved from
     /// `vanished` to `appeared`).
-    fn size_probe(&mut self, radius: f64, vanished: Option<&Beam>, appeared: &Beam) {
-        let Some(v) = vanished else {
-            return;
-        };
+    fn size_probe(&mut self, radius: f64, vanished: Vec2, appeared: Vec2) {
         let step = distance(self.before, self.command);
         if step < SAME_STEP || self.tracker.model().is_some() {
             return;
         }
-        let response = distance(v.centre, appeared.centre) / step;
+        let response = distance(vanished, appeared) / step;
         let [lo, hi] = [0, 1].map(|i| PROBE_SHARES[i] * self.spans[0].min(self.spans[1]));
         let length = (PROBE_RADII * radius / response.max(1e-9)).clamp(lo, hi);
         self.tracker.set_probe([length, length]);
@@ -289,11 +353,14 @@ impl CavityAgent {
     }
 }
 
-/// The primary: the brightest beam in the first frame (its centroid, saturated core and
-/// all, and its radius), else the image centre.
+/// The primary: the brightest beam in the first frame (the centre of its bright core,
+/// which faint ghosts on its halo do not pull, and its radius), else the image centre.
 fn primary(view: &View) -> (Vec2, f64) {
     view.beams
         .first()
-        .map(|b| (b.centre, b.size()))
+        .map(|b| {
+            let centre = core_centre(&view.picture, b, PRIMARY_CORE_SHARE).unwrap_or(b.centre);
+            (centre, b.size())
+        })
         .unwrap_or((view.centre(), 0.05 * view.size()[0].min(view.size()[1])))
 }

@@ -52,8 +52,9 @@ const MIN_SPREAD_SHARE: f64 = 0.125;
 /// Half the separation of the two beams at successive checks, in beam radii.
 const CHECK_APART_RADII: [f64; 3] = [1.8, 2.4, 3.0];
 
-/// A check never puts a beam farther from the centre than this share of the shorter side.
-const CHECK_MAX_SHARE: f64 = 0.4;
+/// A check or a relocation keeps each beam's centre this many radii inside the image, so
+/// that the border cuts neither.
+const WHOLE_RADII: f64 = 1.5;
 
 /// A beam a check did not find goes this many times the other beam's distance from the
 /// centre to the other side of it.
@@ -63,15 +64,17 @@ const RELOCATE_SHARE: f64 = 1.5;
 /// (or within the measurement's own uncertainty, when that is larger).
 const CONFIRM_RADII: f64 = 0.025;
 
+/// A check whose larger miss is within this many radii and not below this share of the
+/// previous check's has stopped improving: the map is as good as the bench allows.
+const STALLED_RADII: f64 = 0.1;
+const STALLED_SHARE: f64 = 0.7;
+
 /// A beam found farther than this many radii from a beam's prediction is not that beam.
 const MATCH_RADII: f64 = 1.0;
 
 /// A probe across a known direction keeps the beam's centre this many radii inside the
 /// image, so the beam shows whole.
 const IN_VIEW_RADII: f64 = 1.0;
-
-/// Position noise is taken to be at least this, px (a centroid is rarely better).
-const MIN_NOISE_PX: f64 = 0.5;
 
 /// A partial sighting this many radii from a border was cut by it.
 const BORDER_RADII: f64 = 0.6;
@@ -100,6 +103,8 @@ pub struct MichelsonAgent {
     before: [Vec2; 2],
     last: Step,
     checks: usize,
+    /// The larger miss of the two beams at the last check, px.
+    last_miss: Option<f64>,
     /// A beam the last check did not find where its map put it.
     missed: Option<usize>,
     /// What the images taught about this bench: beam sizes, jitter.
@@ -129,6 +134,7 @@ impl MichelsonAgent {
             before: [[0.0; 2]; 2],
             last: Step::Start,
             checks: 0,
+            last_miss: None,
             missed: None,
             scales: Scales::default(),
             spans,
@@ -143,7 +149,7 @@ impl MichelsonAgent {
     pub fn decide(&mut self, frame: &Frame, rejected: bool, remaining: usize) -> Action {
         let view = View::new(frame);
         self.scales.learn_view(&view);
-        let noise = self.scales.position_noise().max(MIN_NOISE_PX);
+        let noise = self.scales.model_noise();
         for tracker in &mut self.trackers {
             tracker.noise = noise;
         }
@@ -171,7 +177,7 @@ impl MichelsonAgent {
             return self.finish(centre);
         }
         match self.missed {
-            Some(k) => self.relocate(k, centre),
+            Some(k) => self.relocate(k, size),
             None => self.check(centre, size),
         }
     }
@@ -245,7 +251,7 @@ impl MichelsonAgent {
                 other.map(|p| (p, radius)),
             );
             match sighting {
-                Sighting::Clean(c) if !seen.whole => Sighting::Partial(c),
+                Sighting::Clean(c) | Sighting::Fitted(c) if !seen.whole => Sighting::Partial(c),
                 other => other,
             }
         };
@@ -270,13 +276,6 @@ impl MichelsonAgent {
             self.trackers[j].add_clean(u, c);
         }
         self.trackers[k].estimate_lost_motion();
-        if std::env::var("OPTALIGN_DEBUG").is_ok() {
-            eprintln!(
-                "probe k={k} old={old:?} new={new:?} from={:?} to={:?} seen_from={seen_from:?} seen_to={seen_to:?}",
-                moved.from.map(|s| (s.beam.centre, s.beam.size(), s.whole)),
-                moved.to.map(|s| (s.beam.centre, s.beam.size(), s.whole))
-            );
-        }
     }
 
     /// Sizes the next probes of mirror `k` from what the last one showed: a clean motion
@@ -299,7 +298,10 @@ impl MichelsonAgent {
         let probe = self.trackers[k].probe;
         let scaled = |factor: f64| probe.map(|p| (p * factor).clamp(lo, hi));
         let length = match seen {
-            [Some(Sighting::Clean(a)), Some(Sighting::Clean(b))] => {
+            [
+                Some(Sighting::Clean(a) | Sighting::Fitted(a)),
+                Some(Sighting::Clean(b) | Sighting::Fitted(b)),
+            ] => {
                 let response = distance(a, b) / step;
                 let wanted = self.useful_move(k, after.size());
                 if response > 0.0 {
@@ -309,8 +311,8 @@ impl MichelsonAgent {
                     scaled(PROBE_GROWTH)
                 }
             }
-            [_, Some(Sighting::Clean(_))] => probe,
-            [Some(Sighting::Clean(_)), None] => scaled(1.0 / PROBE_GROWTH),
+            [_, Some(Sighting::Clean(_) | Sighting::Fitted(_))] => probe,
+            [Some(Sighting::Clean(_) | Sighting::Fitted(_)), None] => scaled(1.0 / PROBE_GROWTH),
             [_, Some(Sighting::Partial(_))] => [SEARCH_SHARE * span; 2].map(|p| p.max(probe[0])),
             [None, None] if motion.from.is_none() && !self.trackers[k].clean.is_empty() => {
                 // Seen before, no change now: it hardly moved.
@@ -339,18 +341,35 @@ impl MichelsonAgent {
             return false;
         }
         self.missed = found.iter().position(Option::is_none);
+        let within = found
+            .iter()
+            .zip(predicted)
+            .enumerate()
+            .all(|(k, (seen, p))| seen.is_some_and(|c| distance(c, p) < self.confirm_px(k)));
+        let miss = found
+            .iter()
+            .zip(predicted)
+            .map(|(seen, p)| seen.map_or(f64::INFINITY, |c| distance(c, p)))
+            .fold(0.0, f64::max);
+        // Checks that stopped improving have found what this bench's screws allow.
+        let radius = self.scales.radius(0).min(self.scales.radius(1));
+        let stalled = self
+            .last_miss
+            .is_some_and(|last| miss < STALLED_RADII * radius && miss > STALLED_SHARE * last);
+        self.last_miss = Some(miss);
+        let confirmed = within || stalled;
+        let mut relearned = false;
         for (k, seen) in found.iter().enumerate() {
             if let Some(c) = seen {
                 let u = self.mirror(k);
                 self.trackers[k].add_clean(u, *c);
+                let lost = self.trackers[k].lost;
                 self.trackers[k].estimate_lost_motion();
+                relearned |= self.trackers[k].lost != lost;
             }
         }
-        found
-            .iter()
-            .zip(predicted)
-            .enumerate()
-            .all(|(k, (seen, p))| seen.is_some_and(|c| distance(c, p) < self.confirm_px(k)))
+        // A new estimate of the lost motion changes every prediction: it is checked first.
+        confirmed && !relearned
     }
 
     /// How close a checked beam must land to its prediction to confirm the map, px.
@@ -363,10 +382,7 @@ impl MichelsonAgent {
         let radius = self.scales.radius(k);
         view.beams
             .iter()
-            .filter_map(|b| match sight(b, view, &self.scales, k, None) {
-                Sighting::Clean(c) => Some(c),
-                Sighting::Partial(_) => None,
-            })
+            .filter_map(|b| sight(b, view, &self.scales, k, None).fit_centre())
             .filter(|c| distance(*c, point) < MATCH_RADII * radius)
             .min_by(|a, b| distance(*a, point).total_cmp(&distance(*b, point)))
     }
@@ -432,13 +448,19 @@ impl MichelsonAgent {
     /// Both beams apart on either side of the centre, where each is seen whole.
     fn check(&mut self, centre: Vec2, size: Vec2) -> Action {
         let radius = 0.5 * (self.scales.radius(0) + self.scales.radius(1));
-        let apart = (CHECK_APART_RADII[self.checks.min(CHECK_APART_RADII.len() - 1)] * radius)
-            .min(CHECK_MAX_SHARE * size[0].min(size[1]));
+        let wanted = CHECK_APART_RADII[self.checks.min(CHECK_APART_RADII.len() - 1)] * radius;
+        // Along each image axis, as far apart as wanted while both stay whole.
+        let apart = [0, 1].map(|axis| {
+            wanted
+                .min(size[axis] / 2.0 - WHOLE_RADII * radius)
+                .max(radius)
+        });
+        let [ax, ay] = apart;
         let layouts = [
-            [[-apart, 0.0], [apart, 0.0]],
-            [[0.0, -apart], [0.0, apart]],
-            [[apart, 0.0], [-apart, 0.0]],
-            [[0.0, apart], [0.0, -apart]],
+            [[-ax, 0.0], [ax, 0.0]],
+            [[0.0, -ay], [0.0, ay]],
+            [[ax, 0.0], [-ax, 0.0]],
+            [[0.0, ay], [0.0, -ay]],
         ];
         let first = self.checks % layouts.len();
         let mut chosen = None;
@@ -473,17 +495,19 @@ impl MichelsonAgent {
         self.action(false)
     }
 
-    /// Moves mirror `k` alone to the far side of the centre from the other beam: the frame
-    /// difference then shows which spot is its beam, wherever its map put it.
-    fn relocate(&mut self, k: usize, centre: Vec2) -> Action {
+    /// Moves mirror `k` alone to the far side of the centre from the other beam (on an image
+    /// of `size`, kept whole in view): the frame difference then shows which spot is its
+    /// beam, wherever its map put it.
+    fn relocate(&mut self, k: usize, size: Vec2) -> Action {
         self.missed = None;
+        let centre = [size[0] / 2.0, size[1] / 2.0];
         let other = self.trackers[1 - k]
             .predict_here(self.mirror(1 - k))
             .unwrap_or(centre);
-        let target = [
-            centre[0] + RELOCATE_SHARE * (centre[0] - other[0]),
-            centre[1] + RELOCATE_SHARE * (centre[1] - other[1]),
-        ];
+        let margin = (WHOLE_RADII * self.scales.radius(k)).min(size[0].min(size[1]) / 2.0);
+        let target = [0, 1].map(|a| {
+            (centre[a] + RELOCATE_SHARE * (centre[a] - other[a])).clamp(margin, size[a] - margin)
+        });
         let u = self.trackers[k]
             .command_for(target, self.mirror(k))
             .unwrap_or(self.mirror(k));

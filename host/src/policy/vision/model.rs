@@ -51,6 +51,18 @@ impl Affine {
         }
     }
 
+    /// The ratio of the gain's smaller singular value to its larger (1: both directions
+    /// of command move the feature alike; 0: one does not move it).
+    pub fn balance(&self) -> f64 {
+        let [[a, b], [c, d]] = self.gain;
+        let frobenius = a * a + b * b + c * c + d * d;
+        let det = (a * d - b * c).abs();
+        let root = (frobenius * frobenius - 4.0 * det * det).max(0.0).sqrt();
+        let large = ((frobenius + root) / 2.0).sqrt();
+        let small = ((frobenius - root) / 2.0).max(0.0).sqrt();
+        if large > 0.0 { small / large } else { 0.0 }
+    }
+
     /// Least-squares fit to `(command, image)` pairs; `None` unless the commands span both
     /// axes by at least `min_spread` steps (RMS about their mean along the weaker direction).
     pub fn fit(points: &[(Vec2, Vec2)], min_spread: f64) -> Option<Affine> {
@@ -157,15 +169,48 @@ const LOST_MOTION_SIGNIFICANCE: f64 = 3.0;
 pub enum Sighting {
     /// Its centre can be fitted to.
     Clean(Vec2),
+    /// The centre of a spot the border cuts, extrapolated by a spot fit: good enough to fit
+    /// a map to until whole sightings span one.
+    Fitted(Vec2),
     /// Roughly where it is (cut, merged, speckled).
     Partial(Vec2),
 }
 
+impl Sighting {
+    /// The centre a map may be fitted to (clean or fitted).
+    pub fn fit_centre(self) -> Option<Vec2> {
+        match self {
+            Sighting::Clean(c) | Sighting::Fitted(c) => Some(c),
+            Sighting::Partial(_) => None,
+        }
+    }
+}
+
+/// A probe aimed by the rough map of every sighting goes at most this many probe lengths
+/// per axis ...
+const ROUGH_REACH: f64 = 3.0;
+
+/// ... and only when the map moves the beam along its weaker direction at least this share
+/// as far as along its stronger (a mount's axes respond alike; a map that says one hardly
+/// moves the beam was fitted to centroids the border pinned).
+const ROUGH_BALANCE: f64 = 0.2;
+
 /// A fit keeps at least this many sightings when it drops contradicted ones ...
 const ROBUST_MIN_POINTS: usize = 4;
 
-/// ... which miss the others' fit by more than this many position noises.
+/// ... which miss the others' fit by more than this many position noises (or typical
+/// misses, when those are larger).
 const OUTLIER_NOISES: f64 = 4.0;
+
+/// The others' fit is the one that fits this share of the sightings best (a least-trimmed-
+/// squares fit: a few biased sightings, such as two beams seen merged, cannot pull it) ...
+const TRIM_KEEP: f64 = 0.6;
+
+/// ... searched over every such subset up to this many sightings, greedily beyond.
+const TRIM_EXHAUSTIVE: usize = 12;
+
+/// The median distance of a two-dimensional Gaussian scatter, in its per-axis deviations.
+const MEDIAN_MISS_PER_SIGMA: f64 = 1.177;
 
 /// One sighting of a feature: the command, where it showed, and the direction each axis
 /// had last moved in (+1, -1; 0 before its first move).
@@ -176,6 +221,8 @@ pub struct Sight {
     pub dir: Vec2,
     /// When it was made, counting every sighting of the tracker.
     pub order: usize,
+    /// Extrapolated from a spot the border cut ([`Sighting::Fitted`]).
+    pub fitted: bool,
 }
 
 /// What the agent knows about one feature driven by one two-axis actuator.
@@ -248,11 +295,15 @@ impl Tracker {
         ]
     }
 
+    /// The clean sightings a map is fitted to, on effective commands: the whole ones alone
+    /// once they span both axes (a fitted centre of a cut spot is less exact), else all.
     fn points(&self) -> Vec<(Vec2, Vec2)> {
-        self.clean
-            .iter()
-            .map(|s| (self.effective(s.command, s.dir), s.image))
-            .collect()
+        let point = |s: &Sight| (self.effective(s.command, s.dir), s.image);
+        let whole: Vec<(Vec2, Vec2)> = self.clean.iter().filter(|s| !s.fitted).map(point).collect();
+        if whole.len() < self.clean.len() && Affine::fit(&whole, self.min_spread).is_some() {
+            return whole;
+        }
+        self.clean.iter().map(point).collect()
     }
 
     /// The fitted model (on effective commands), once the clean sightings span both axes.
@@ -260,26 +311,79 @@ impl Tracker {
     /// dropped one by one, worst first, while more than a minimal fit remains: an early
     /// sighting of a beam cut by the border must not bend the map for ever.
     pub fn model(&self) -> Option<Affine> {
-        let mut points = self.points();
-        let mut model = Affine::fit(&points, self.min_spread)?;
-        while points.len() > ROBUST_MIN_POINTS {
-            let (worst, miss) = points
+        self.robust_fit().map(|(model, _)| model)
+    }
+
+    /// The robust fit behind [`Self::model`] and the points it kept. A miss counts as
+    /// contradicted beyond a few times the larger of the position noise and the typical
+    /// miss of the full fit (a screw's pitch error or hysteresis scatters every sighting a
+    /// little: that is the bench, not an outlier).
+    fn robust_fit(&self) -> Option<(Affine, Vec<(Vec2, Vec2)>)> {
+        let points = self.points();
+        let full = Affine::fit(&points, self.min_spread)?;
+        let core = self.trimmed_fit(&points).unwrap_or(full);
+        let misses: Vec<f64> = points
+            .iter()
+            .map(|(u, p)| distance(core.predict(*u), *p))
+            .collect();
+        let mut sorted = misses.clone();
+        sorted.sort_by(f64::total_cmp);
+        let typical = sorted[sorted.len() / 2] / MEDIAN_MISS_PER_SIGMA;
+        let limit = OUTLIER_NOISES * self.noise.max(typical);
+        let kept: Vec<(Vec2, Vec2)> = points
+            .iter()
+            .zip(&misses)
+            .filter(|(_, miss)| **miss <= limit)
+            .map(|(point, _)| *point)
+            .collect();
+        if kept.len() < ROBUST_MIN_POINTS {
+            return Some((full, points));
+        }
+        let model = Affine::fit(&kept, self.min_spread).unwrap_or(core);
+        Some((model, kept))
+    }
+
+    /// The fit to the [`TRIM_KEEP`] share of `points` it fits best (least trimmed squares):
+    /// every subset of that size for a few points, greedy removal of the worst beyond.
+    fn trimmed_fit(&self, points: &[(Vec2, Vec2)]) -> Option<Affine> {
+        let keep = ((TRIM_KEEP * points.len() as f64).ceil() as usize).max(ROBUST_MIN_POINTS);
+        if keep >= points.len() {
+            return None;
+        }
+        let squares = |model: &Affine, subset: &[(Vec2, Vec2)]| -> f64 {
+            subset
                 .iter()
-                .enumerate()
-                .map(|(i, (u, p))| (i, distance(model.predict(*u), *p)))
-                .max_by(|a, b| a.1.total_cmp(&b.1))?;
-            if miss <= OUTLIER_NOISES * self.noise {
-                break;
-            }
-            let mut fewer = points.clone();
+                .map(|(u, p)| distance(model.predict(*u), *p).powi(2))
+                .sum()
+        };
+        if points.len() <= TRIM_EXHAUSTIVE {
+            return (0u32..1 << points.len())
+                .filter(|mask| mask.count_ones() as usize == keep)
+                .filter_map(|mask| {
+                    let subset: Vec<(Vec2, Vec2)> = (0..points.len())
+                        .filter(|i| mask & (1 << i) != 0)
+                        .map(|i| points[i])
+                        .collect();
+                    let model = Affine::fit(&subset, self.min_spread)?;
+                    Some((squares(&model, &subset), model))
+                })
+                .min_by(|a, b| a.0.total_cmp(&b.0))
+                .map(|(_, model)| model);
+        }
+        let mut subset = points.to_vec();
+        let mut model = Affine::fit(&subset, self.min_spread)?;
+        while subset.len() > keep {
+            let worst = (0..subset.len()).max_by(|&a, &b| {
+                let miss = |i: usize| distance(model.predict(subset[i].0), subset[i].1);
+                miss(a).total_cmp(&miss(b))
+            })?;
+            let mut fewer = subset.clone();
             fewer.remove(worst);
-            match Affine::fit(&fewer, self.min_spread) {
-                Some(refit) => {
-                    points = fewer;
-                    model = refit;
-                }
-                None => break,
-            }
+            let Some(refit) = Affine::fit(&fewer, self.min_spread) else {
+                break;
+            };
+            subset = fewer;
+            model = refit;
         }
         Some(model)
     }
@@ -463,10 +567,10 @@ impl Tracker {
     /// Records a clean sighting at `command`, replacing an earlier one at the same command
     /// and direction.
     pub fn add_clean(&mut self, command: Vec2, image: Vec2) {
-        self.add_clean_with(command, image, self.dir);
+        self.add_clean_with(command, image, self.dir, false);
     }
 
-    fn add_clean_with(&mut self, command: Vec2, image: Vec2, dir: Vec2) {
+    fn add_clean_with(&mut self, command: Vec2, image: Vec2, dir: Vec2, fitted: bool) {
         self.clean
             .retain(|s| distance(s.command, command) >= SAME_STEP || s.dir != dir);
         let order = self.next_order();
@@ -475,6 +579,7 @@ impl Tracker {
             image,
             dir,
             order,
+            fitted,
         });
     }
 
@@ -485,6 +590,7 @@ impl Tracker {
             image,
             dir,
             order,
+            fitted: false,
         });
     }
 
@@ -493,26 +599,25 @@ impl Tracker {
         self.made
     }
 
-    pub fn add_partial(&mut self, command: Vec2, image: Vec2) {
-        self.add_partial_with(command, image, self.dir);
-    }
-
     /// Files what was seen at the current `command` (or that nothing was).
     pub fn file(&mut self, command: Vec2, seen: Option<Sighting>) {
         match seen {
-            Some(Sighting::Clean(c)) => self.add_clean(command, c),
-            Some(Sighting::Partial(c)) => self.add_partial(command, c),
+            Some(seen) => self.file_with(command, seen, self.dir),
             None => self.add_missing(command),
+        }
+    }
+
+    fn file_with(&mut self, command: Vec2, seen: Sighting, dir: Vec2) {
+        match seen {
+            Sighting::Clean(c) => self.add_clean_with(command, c, dir, false),
+            Sighting::Fitted(c) => self.add_clean_with(command, c, dir, true),
+            Sighting::Partial(c) => self.add_partial_with(command, c, dir),
         }
     }
 
     /// Files what was seen at `command` before the last move, with the directions then.
     pub fn file_before_move(&mut self, command: Vec2, seen: Sighting) {
-        let dir = self.previous_dir;
-        match seen {
-            Sighting::Clean(c) => self.add_clean_with(command, c, dir),
-            Sighting::Partial(c) => self.add_partial_with(command, c, dir),
-        }
+        self.file_with(command, seen, self.previous_dir);
     }
 
     pub fn add_missing(&mut self, command: Vec2) {
@@ -630,9 +735,42 @@ impl Tracker {
         if self.is_fresh() {
             return self.clamp([start[0] + self.probe[0], start[1]]);
         }
-        self.probe_across(view, margin)
+        self.rough_aim(view)
+            .or_else(|| self.probe_across(view, margin))
             .or_else(|| self.back_the_other_way())
             .unwrap_or_else(|| self.next_probe_preferring(start, prefer))
+    }
+
+    /// While the clean sightings fit no map, one fitted to the steering sightings (every
+    /// sighting until two clean ones span a direction) aims half-way from the latest
+    /// sighting to the centre of an image of size `view`, at most [`ROUGH_REACH`] probe
+    /// lengths per axis: a cut beam's centroid moves the right way but less than the beam,
+    /// so the rough map overestimates the move it needs. `None` while the sightings span no
+    /// two directions.
+    fn rough_aim(&self, view: Vec2) -> Option<Vec2> {
+        if self.model().is_some() {
+            return None;
+        }
+        let sights = self.steering_sightings();
+        let points: Vec<(Vec2, Vec2)> = sights
+            .iter()
+            .map(|s| (self.effective(s.command, s.dir), s.image))
+            .collect();
+        let rough = Affine::fit(&points, self.min_spread)?;
+        if rough.balance() < ROUGH_BALANCE {
+            return None;
+        }
+        let latest = sights.last()?;
+        let base = latest.command;
+        let halfway = [0, 1].map(|a| (latest.image[a] + view[a] / 2.0) / 2.0);
+        let aim = rough
+            .anchored(self.effective(base, latest.dir), latest.image)
+            .solve(halfway)?;
+        let command = self.clamp([0, 1].map(|a| {
+            let reach = ROUGH_REACH * self.probe[a];
+            aim[a].clamp(base[a] - reach, base[a] + reach)
+        }));
+        (!self.tried_within(command, self.same_command())).then_some(command)
     }
 
     /// When the last move lost a feature that showed just before, the same move the other

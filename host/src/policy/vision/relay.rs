@@ -242,14 +242,14 @@ impl RelayAgent {
         let side = self
             .previous
             .as_ref()
-            .map_or(480.0, |(view, _, _)| view.size()[0].min(view.size()[1]));
+            .map(|(view, _, _)| view.size()[0].min(view.size()[1]));
         let nominal = self
             .px_per_step_mm
             .zip(self.distances)
             .map(|(r, d)| r * d[2 * self.mirror]);
-        let probe = match nominal.or(self.known_response) {
-            Some(response) => PROBE_VIEW_SHARE * side / response,
-            None => CAUTIOUS_SHARE * range,
+        let probe = match (nominal.or(self.known_response), side) {
+            (Some(response), Some(side)) => PROBE_VIEW_SHARE * side / response,
+            _ => CAUTIOUS_SHARE * range,
         };
         Servo::new(probe, bounds, gain)
     }

@@ -43,6 +43,9 @@ pub struct Seen {
     /// Measured on the view's own beam, whole and alone (false: only the change, or a
     /// detection that holds more than the moved beam).
     pub whole: bool,
+    /// The change in the frames' difference: the moved beam alone, whatever it merged
+    /// with in the view (whole only when the beam moved clear of its other place).
+    pub change: Beam,
 }
 
 /// How the beam that moved shows in two views.
@@ -63,7 +66,7 @@ fn allowance(a: &Beam, b: &Beam, steady: f64) -> f64 {
 }
 
 /// Whether two detections can be the same feature (alike in size and light).
-fn alike(a: &Beam, b: &Beam) -> bool {
+pub fn alike(a: &Beam, b: &Beam) -> bool {
     let size = a.size().max(1.0) / b.size().max(1.0);
     let light = a.signal.max(1.0) / b.signal.max(1.0);
     (0.5..2.0).contains(&size) && (0.33..3.0).contains(&light)
@@ -107,21 +110,28 @@ fn locate(blob: &Beam, beams: &[Beam], moving: &[bool]) -> Seen {
             Seen {
                 beam: *blob,
                 whole: false,
+                change: *blob,
             },
             |b| Seen {
                 beam: *b,
                 whole: true,
+                change: *blob,
             },
         )
 }
 
 /// The beam that moved between a place and the next is the same beam: a detection much
-/// larger than its counterpart holds more than the beam (it had merged with another) ...
+/// larger than its counterpart holds more than the beam (it had merged with another; a
+/// detection the border cuts is smaller, so only whole ones compare) ...
 const MERGED_SIZE: f64 = 1.6;
 
 /// ... as does one with much more light than the change, when the beam moved clear of
 /// where it was.
 const MERGED_LIGHT: f64 = 1.4;
+
+/// A change within a stationary feature carrying less than this share of its light is
+/// residue of the feature's jitter.
+const RESIDUE_SHARE: f64 = 0.25;
 
 /// The beam that moved from `before` to `after`: found in the frames' difference (what
 /// stayed cancels, whatever merged with it), measured on the views' own beams that did
@@ -137,6 +147,28 @@ pub fn motion(
     avoid: Option<(Vec2, Vec2)>,
 ) -> Motion {
     let moved = changes(&before.picture, &after.picture);
+    let pairs = stationary_pairs(&before.beams, &after.beams, steady);
+    // A change inside a feature that stayed, with a small share of its light, is that
+    // feature's jitter or texture shifting, not a beam that moved.
+    let residue = |blob: &Beam, beams: &[Beam], side: fn(&(usize, usize)) -> usize| {
+        pairs.iter().map(side).any(|i| {
+            let stayed = &beams[i];
+            distance(blob.centre, stayed.centre) < stayed.size()
+                && blob.signal < RESIDUE_SHARE * stayed.signal
+        })
+    };
+    let appeared: Vec<Beam> = moved
+        .appeared
+        .iter()
+        .filter(|b| !residue(b, &after.beams, |p| p.1))
+        .copied()
+        .collect();
+    let vanished: Vec<Beam> = moved
+        .vanished
+        .iter()
+        .filter(|b| !residue(b, &before.beams, |p| p.0))
+        .copied()
+        .collect();
     let keep = |blobs: &[Beam], avoid: Option<Vec2>| -> Vec<Beam> {
         let nearest_avoided = avoid.and_then(|p| {
             blobs
@@ -151,8 +183,8 @@ pub fn motion(
             .copied()
             .collect()
     };
-    let appeared = keep(&moved.appeared, avoid.map(|a| a.1));
-    let vanished = keep(&moved.vanished, avoid.map(|a| a.0));
+    let appeared = keep(&appeared, avoid.map(|a| a.1));
+    let vanished = keep(&vanished, avoid.map(|a| a.0));
     let to = pick(&appeared, expected);
     let from = match to {
         Some(t) => vanished
@@ -166,7 +198,6 @@ pub fn motion(
             .max_by(|a, b| a.signal.total_cmp(&b.signal))
             .copied(),
     };
-    let pairs = stationary_pairs(&before.beams, &after.beams, steady);
     let moving_before: Vec<bool> = (0..before.beams.len())
         .map(|i| !pairs.iter().any(|p| p.0 == i))
         .collect();
@@ -188,6 +219,8 @@ pub fn motion(
     if let (Some(f), Some(t)) = (&mut from, &mut to)
         && f.whole
         && t.whole
+        && !f.beam.clipped
+        && !t.beam.clipped
     {
         if f.beam.size() > MERGED_SIZE * t.beam.size() {
             f.whole = false;

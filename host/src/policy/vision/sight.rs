@@ -20,9 +20,12 @@ const DEFAULT_STEADY_RADII: f64 = 0.15;
 /// Stationary features may seem to move this many times their measured RMS displacement.
 const STEADY_SPREAD: f64 = 4.0;
 
+/// The noise a map's fit allows for is at least this, px (a centroid is rarely better).
+const MIN_MODEL_NOISE_PX: f64 = 0.5;
+
 /// A spot fit worse than this (RMS share of the peak) is two spots merged or not a
 /// Gaussian beam: its centre is not extrapolated.
-const MAX_MISFIT: f64 = 0.06;
+const MAX_MISFIT: f64 = 0.1;
 
 /// A fitted centre is trusted up to this many fitted radii outside the image.
 const MAX_EXTRAPOLATION: f64 = 0.4;
@@ -90,7 +93,7 @@ impl Scales {
     }
 
     /// The known radius of feature `k`, when it was seen cleanly.
-    fn known_radius(&self, k: usize) -> Option<f64> {
+    pub fn known_radius(&self, k: usize) -> Option<f64> {
         median(&mut self.sizes[k].clone())
     }
 
@@ -117,6 +120,11 @@ impl Scales {
             .jitter()
             .map_or(0.0, |rms| rms / std::f64::consts::SQRT_2);
         jitter.hypot(self.uncertainty.unwrap_or(0.0))
+    }
+
+    /// The position noise a map fitted to sightings allows for, px.
+    pub fn model_noise(&self) -> f64 {
+        self.position_noise().max(MIN_MODEL_NOISE_PX)
     }
 
     /// What the agent learned about the bench, for the transcript.
@@ -171,7 +179,7 @@ pub fn sight(
         f.misfit < MAX_MISFIT && beyond < MAX_EXTRAPOLATION * f.radius && alike && !corner
     });
     match trusted {
-        Some(fit) => Sighting::Clean(fit.centre),
+        Some(fit) => Sighting::Fitted(fit.centre),
         None => Sighting::Partial(beam.centre),
     }
 }
