@@ -10,6 +10,7 @@ use serde_json::Value;
 use super::image::scaled_size;
 use super::prompt::system_prompt;
 use super::{ReasoningEffort, VlmOptions};
+use crate::policy::TaskBrief;
 use crate::scenario::ScenarioFile;
 use crate::task::TaskKind;
 
@@ -207,7 +208,8 @@ pub fn estimate_cost(
     options: &VlmOptions,
     pricing: Option<&Pricing>,
 ) -> anyhow::Result<CostEstimate> {
-    let system = system_prompt(task, &scenario.tasks, options.prompt.as_deref())?;
+    let brief = TaskBrief::new(task, &scenario.tasks, scenario.geometry(task));
+    let system = system_prompt(&brief, options.prompt.as_deref())?;
     let system_tokens = system.len().div_ceil(4) as u64;
     let (width, height) = match task {
         TaskKind::Michelson => (scenario.michelson.width_px, scenario.michelson.height_px),

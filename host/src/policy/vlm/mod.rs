@@ -223,7 +223,7 @@ impl VlmPolicy {
         backend: Box<dyn ChatBackend>,
     ) -> anyhow::Result<Self> {
         options.validate()?;
-        let system = prompt::system_prompt(brief.task, &brief.limits, options.prompt.as_deref())?;
+        let system = prompt::system_prompt(brief, options.prompt.as_deref())?;
         Ok(Self {
             brief: brief.clone(),
             options: options.clone(),
