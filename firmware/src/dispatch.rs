@@ -6,6 +6,12 @@
 //! reconnected gets its retransmission answered even while its old connection still holds
 //! control), then the single-controller rule (see [`crate::control`]), then the command.
 //!
+//! `Stop` and `EmergencyStop` are never answered from the reply memory nor kept in it: they
+//! run every time they arrive, and a flood of them cannot push another client's remembered
+//! replies out. An emergency stop latches motion off (`emergency-stopped`) until
+//! `ClearEmergency`, a control command, so only the controlling client (or the serial link)
+//! releases it.
+//!
 //! A move arriving while another runs replaces it: the running move brakes to a stop along
 //! its ramps (its `MoveFinished` says `Stopped`), and the new one is planned from where the
 //! axes come to rest (known exactly at once, since braking is deterministic) and starts
@@ -78,6 +84,8 @@ impl<S: Storage> Controller<S> {
         }
         self.check_access(session, command)?;
         if !ReplyCache::applies_to(command) {
+            // Never remembered: runs every time it arrives (stops, reads, the handshake).
+            self.admit(session, command)?;
             return self.execute(session, request.id, command, now, rng);
         }
         let fingerprint = ReplyCache::fingerprint(command);
@@ -163,6 +171,10 @@ impl<S: Storage> Controller<S> {
             }
             Command::AuthChallenge => self.challenge(session, rng),
             Command::AuthResponse { tag } => self.authenticate(session, tag),
+            Command::ClearEmergency => {
+                self.clear_emergency();
+                Ok(Reply::Ok)
+            }
         }
     }
 
@@ -248,6 +260,13 @@ impl<S: Storage> Controller<S> {
         relative: bool,
         now: u64,
     ) -> Result<Reply, ErrorReply> {
+        if self.emergency {
+            return Err(error_reply!(
+                ErrorCode::EMERGENCY_STOPPED,
+                "motion is latched off by an emergency stop: the controlling client must send \
+                 ClearEmergency first"
+            ));
+        }
         // Where the running motion would come to rest if told to stop now.
         let mut braking = self.active.clone();
         if let Some(mv) = braking.as_mut() {
@@ -309,10 +328,6 @@ impl<S: Storage> Controller<S> {
         } else {
             self.active = Some(planned);
         }
-        self.emergency = false;
-        for axis in self.axes.iter_mut() {
-            axis.faults.0 &= !Faults::EMERGENCY_STOP;
-        }
         Ok(Reply::MoveStarted {
             duration_ms: u32::try_from(duration_us.div_ceil(1000)).unwrap_or(u32::MAX),
         })
@@ -328,7 +343,7 @@ impl<S: Storage> Controller<S> {
     }
 
     /// Stops every axis where it is, releases the coils (at the next poll, which is due at
-    /// once) and latches the emergency state until the next accepted move.
+    /// once) and latches motion off until [`Command::ClearEmergency`].
     fn emergency_stop(&mut self) {
         self.emergency = true;
         if let Some(mv) = self.active.take() {
@@ -352,6 +367,14 @@ impl<S: Storage> Controller<S> {
             axis.power_down_at = None;
         }
         self.persist_soon();
+    }
+
+    /// Releases the emergency latch; the coils stay off until the next move.
+    fn clear_emergency(&mut self) {
+        self.emergency = false;
+        for axis in self.axes.iter_mut() {
+            axis.faults.0 &= !Faults::EMERGENCY_STOP;
+        }
     }
 
     fn set_position(&mut self, axis: u8, position: i32) -> Result<Reply, ErrorReply> {

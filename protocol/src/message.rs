@@ -40,7 +40,8 @@ pub enum Command {
     MoveBy { deltas: Vec<AxisValue, MAX_AXES> },
     /// Decelerates every axis to a stop.
     Stop,
-    /// Stops every axis at once and switches the coils off. Allowed without authentication.
+    /// Stops every axis at once, switches the coils off and latches motion off until
+    /// [`Command::ClearEmergency`]. Allowed without authentication.
     EmergencyStop,
     /// Declares the current logical position of an idle axis to be `position`.
     SetPosition { axis: u8, position: i32 },
@@ -61,6 +62,9 @@ pub enum Command {
     AuthChallenge,
     /// Answers the latest challenge with HMAC-SHA256(key, nonce || context).
     AuthResponse { tag: [u8; KEY_LEN] },
+    /// Releases the emergency latch so that moves are accepted again (coils stay off until
+    /// the next move).
+    ClearEmergency,
 }
 
 impl Command {
@@ -81,6 +85,7 @@ impl Command {
             Self::SetKey { .. } => "SetKey",
             Self::AuthChallenge => "AuthChallenge",
             Self::AuthResponse { .. } => "AuthResponse",
+            Self::ClearEmergency => "ClearEmergency",
         }
     }
 
@@ -98,7 +103,8 @@ impl Command {
             | Self::Stop
             | Self::SetPosition { .. }
             | Self::SetConfig { .. }
-            | Self::SaveConfig => Access::Control,
+            | Self::SaveConfig
+            | Self::ClearEmergency => Access::Control,
             Self::ProvisionWifi { .. } | Self::SetKey { .. } => Access::SerialOnly,
         }
     }
@@ -195,7 +201,8 @@ impl Capabilities {
 pub struct Status {
     pub axes: Vec<AxisStatus, MAX_AXES>,
     pub session: SessionState,
-    /// Latched by an emergency stop; cleared by the next accepted move.
+    /// Latched by an emergency stop; while set, moves are refused with
+    /// `emergency-stopped` until [`Command::ClearEmergency`].
     pub emergency_stopped: bool,
     pub uptime_ms: u64,
 }

@@ -94,6 +94,7 @@ fn command() -> impl Strategy<Value = Command> {
         any::<[u8; 32]>().prop_map(|key| Command::SetKey { key }),
         Just(Command::AuthChallenge),
         any::<[u8; 32]>().prop_map(|tag| Command::AuthResponse { tag }),
+        Just(Command::ClearEmergency),
     ]
 }
 

@@ -263,7 +263,7 @@ fn a_move_waiting_for_a_stop_that_is_replaced_finishes_at_once() {
 }
 
 #[test]
-fn emergency_stop_cuts_at_once_and_latches_until_the_next_move() {
+fn emergency_stop_cuts_at_once_and_latches_until_cleared() {
     let mut rig = Rig::new(2, 0, config(800, 2000, 0));
     rig.send_id(
         RequestId(5),
@@ -308,10 +308,23 @@ fn emergency_stop_cuts_at_once_and_latches_until_the_next_move() {
     assert!(status.axes[0].faults.has(Faults::EMERGENCY_STOP));
     assert!(status.axes[1].faults.is_clear());
     assert!(!status.axes[0].powered);
-    // The next accepted move clears the latch.
-    rig.move_and_settle(&[(0, 0)]);
+    // Moves are refused while latched, and nothing steps.
+    let reason = rig.error(
+        Command::MoveTo {
+            targets: values(&[(0, 0)]),
+        },
+        ErrorCode::EMERGENCY_STOPPED,
+    );
+    assert!(reason.contains("ClearEmergency"), "{reason}");
+    rig.settle();
+    assert_eq!(rig.driver.steps.len(), steps_before);
+    assert!(rig.status().emergency_stopped);
+    // Cleared: the latch and the fault bits go, the coils stay off until the next move.
+    rig.ok(Command::ClearEmergency);
     let status = rig.status();
     assert!(!status.emergency_stopped && status.axes[0].faults.is_clear());
+    assert!(!status.axes[0].powered);
+    rig.move_and_settle(&[(0, 0)]);
     assert_eq!(rig.shaft(0), 0);
     // An emergency stop when idle latches too.
     rig.ok(Command::EmergencyStop);

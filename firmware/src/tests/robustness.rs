@@ -85,6 +85,7 @@ fn command() -> impl Strategy<Value = Command> {
         4 => axis_values().prop_map(|deltas| Command::MoveBy { deltas }),
         2 => Just(Command::Stop),
         1 => Just(Command::EmergencyStop),
+        2 => Just(Command::ClearEmergency),
         1 => (0u8..4, prop_oneof![-3000i32..3000, any::<i32>()])
             .prop_map(|(axis, position)| Command::SetPosition { axis, position }),
         1 => (0u8..4).prop_map(|axis| Command::GetConfig { axis }),
@@ -130,7 +131,7 @@ fn event() -> impl Strategy<Value = Event> {
 fn random_requests_never_panic() {
     let moves = Cell::new(0);
     let mut runner = TestRunner::new(ProptestConfig {
-        cases: 128,
+        cases: 192,
         failure_persistence: None,
         ..ProptestConfig::default()
     });

@@ -44,9 +44,9 @@ impl ControllerArgs {
             Some(ErrorCode::OUT_OF_LIMITS) => Some(
                 "see the axis limits with `optalign status` or change them with `optalign config set AXIS min=.. max=..`",
             ),
-            Some(ErrorCode::EMERGENCY_STOPPED) => {
-                Some("the emergency stop is latched; the next accepted move clears it")
-            }
+            Some(ErrorCode::EMERGENCY_STOPPED) => Some(
+                "the emergency stop is latched: release it with `optalign clear-emergency`, then move again",
+            ),
             _ => None,
         };
         match hint {
