@@ -194,6 +194,7 @@ impl<S: Storage> Controller<S> {
             board_id: self.info.board_id,
             axes: u8::try_from(self.axes.len()).unwrap_or(u8::MAX),
             capabilities: Capabilities(self.info.capabilities),
+            boot_nonce: self.boot_nonce,
         }))
     }
 
@@ -286,6 +287,14 @@ impl<S: Storage> Controller<S> {
             let (Some(axis), Some(rest)) = (self.axes.get(index), rest.get(index)) else {
                 return Err(internal("axis vanished"));
             };
+            if axis.faults.has(Faults::POSITION_LOST) {
+                return Err(error_reply!(
+                    ErrorCode::AXIS_FAULT,
+                    "axis {}: position lost (reset mid-move or unreadable record): re-zero it with \
+                     SetPosition",
+                    value.axis
+                ));
+            }
             let limits = axis.config.limits;
             let target = if relative {
                 i64::from(rest.position) + i64::from(value.steps)

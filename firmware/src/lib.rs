@@ -27,6 +27,7 @@ mod controller;
 mod dispatch;
 pub mod driver;
 pub mod gear;
+pub mod mark;
 mod motion;
 pub mod path;
 pub mod ramp;

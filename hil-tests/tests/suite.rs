@@ -166,6 +166,7 @@ async fn the_client_refuses_a_peer_of_another_version() {
                 board_id: 1,
                 axes: 1,
                 capabilities: Capabilities(0),
+                boot_nonce: 1,
             };
             let reply = PeerMessage::Reply {
                 id: request.id,

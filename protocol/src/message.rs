@@ -3,9 +3,10 @@
 //!
 //! Encoding rule: postcard encodes enum variants by position, so variants and fields are
 //! only ever appended, and any change to an existing layout bumps
-//! [`PROTOCOL_VERSION`](crate::PROTOCOL_VERSION). `Command::Hello` is variant 0 and
-//! `Reply::Hello` carries [`Identity`], whose layout is frozen, so that two different
-//! versions can always tell each other apart.
+//! [`PROTOCOL_VERSION`](crate::PROTOCOL_VERSION). `Command::Hello` is variant 0 and its
+//! layout is frozen, and a peer answers a `Hello` of another version with an error reply
+//! (frozen too) rather than an [`Identity`], so that two different versions can always
+//! tell each other apart.
 
 use heapless::{String, Vec};
 use serde::{Deserialize, Serialize};
@@ -168,7 +169,7 @@ pub enum Reply {
     Error(ErrorReply),
 }
 
-/// Who a controller is. Layout frozen across protocol versions.
+/// Who a controller is, and which start-up of it answers.
 #[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
 pub struct Identity {
     pub protocol_version: u16,
@@ -177,6 +178,9 @@ pub struct Identity {
     pub board_id: u64,
     pub axes: u8,
     pub capabilities: Capabilities,
+    /// Drawn at random at every start-up: another value means the controller restarted
+    /// (and forgot its reply memory) since the last handshake.
+    pub boot_nonce: u64,
 }
 
 /// Feature bits a controller advertises.
@@ -205,6 +209,22 @@ pub struct Status {
     /// `emergency-stopped` until [`Command::ClearEmergency`].
     pub emergency_stopped: bool,
     pub uptime_ms: u64,
+    /// What the controller found in storage when it started.
+    pub boot: BootRecord,
+}
+
+/// What a controller found in storage at start-up.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub enum BootRecord {
+    /// Nothing was ever saved (a fresh board): positions start at 0 by assumption.
+    NoRecordYet,
+    /// Positions and configuration came back from the saved record.
+    Restored,
+    /// The saved record could not be read: every axis is flagged `POSITION_LOST`.
+    Unreadable,
+    /// The controller was reset while axes were moving (or before a lost position was
+    /// declared again): those axes are flagged `POSITION_LOST`.
+    InterruptedMove,
 }
 
 /// What this connection may do.
@@ -275,7 +295,9 @@ impl Faults {
     pub const EMERGENCY_STOP: u8 = 1 << 0;
     /// The driver reported a fault (STEP/DIR drivers with a fault line).
     pub const DRIVER: u8 = 1 << 1;
-    /// Positions were not restored from storage at start-up.
+    /// The position is not known: the controller was reset while the axis moved, or its
+    /// record was unreadable. Moves of the axis are refused with `axis-fault` until
+    /// `SetPosition` declares where it is.
     pub const POSITION_LOST: u8 = 1 << 2;
 
     pub fn has(self, bit: u8) -> bool {

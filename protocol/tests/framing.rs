@@ -151,26 +151,43 @@ fn error_reply() -> impl Strategy<Value = ErrorReply> {
 
 fn reply() -> impl Strategy<Value = Reply> {
     prop_oneof![
-        (any::<(u16, u64, u8, u32)>(), text::<16>(), text::<24>()).prop_map(
-            |((protocol_version, board_id, axes, caps), firmware_version, board)| {
-                Reply::Hello(Identity {
-                    protocol_version,
+        (
+            any::<(u16, u64, u8, u32, u64)>(),
+            text::<16>(),
+            text::<24>()
+        )
+            .prop_map(
+                |(
+                    (protocol_version, board_id, axes, caps, boot_nonce),
                     firmware_version,
                     board,
-                    board_id,
-                    axes,
-                    capabilities: Capabilities(caps),
-                })
-            }
-        ),
+                )| {
+                    Reply::Hello(Identity {
+                        protocol_version,
+                        firmware_version,
+                        board,
+                        board_id,
+                        axes,
+                        capabilities: Capabilities(caps),
+                        boot_nonce,
+                    })
+                }
+            ),
         (
             prop::collection::vec(axis_status(), 0..=MAX_AXES),
-            any::<(bool, bool, bool, bool, u64)>()
+            any::<(bool, bool, bool, bool, u64)>(),
+            prop_oneof![
+                Just(BootRecord::NoRecordYet),
+                Just(BootRecord::Restored),
+                Just(BootRecord::Unreadable),
+                Just(BootRecord::InterruptedMove),
+            ]
         )
             .prop_map(
                 |(
                     axes,
                     (trusted_link, authenticated, key_provisioned, emergency_stopped, uptime_ms),
+                    boot,
                 )| {
                     Reply::Status(Status {
                         axes: axes.into_iter().collect(),
@@ -181,6 +198,7 @@ fn reply() -> impl Strategy<Value = Reply> {
                         },
                         emergency_stopped,
                         uptime_ms,
+                        boot,
                     })
                 }
             ),

@@ -200,7 +200,7 @@ fn random_requests_never_panic() {
                 }
                 Event::TornWrite(bytes) => rig.controller.storage_mut().tear_next_write(bytes),
                 Event::Reboot => {
-                    let storage = rig.controller.storage().clone();
+                    let storage = rig.controller.storage().power_cycled();
                     rig = Rig::boot(storage, (0..3).map(|_| crate::sim::MountModel::new(5)), 3);
                     sessions = links.map(|link| open(&mut rig, link));
                 }

@@ -6,6 +6,11 @@
 //! controller's reply cache makes that safe), reconnects transparently when the link
 //! drops, and turns the controller's unsolicited notifications into a stream. Moves return
 //! once the motion has finished, like a status future in Bluesky/Ophyd.
+//!
+//! The reply cache lives in the controller's RAM, so a retransmission is only safe to the
+//! start-up that saw the first transmission: a command with an effect is never sent again
+//! once the controller's boot nonce has changed, and its outcome is reported as unknown
+//! ([`ClientError::OutcomeUnknown`]).
 
 use std::collections::HashMap;
 use std::sync::atomic::{AtomicU32, Ordering};
@@ -84,6 +89,14 @@ pub enum ClientError {
     MoveTimeout {
         endpoint: Endpoint,
         waited: Duration,
+    },
+    #[error(
+        "controller at {endpoint} restarted while {request} (request {id:#010x}) was under way: it was not sent again, and its outcome is unknown"
+    )]
+    OutcomeUnknown {
+        endpoint: Endpoint,
+        request: &'static str,
+        id: u32,
     },
 }
 
@@ -181,6 +194,15 @@ impl Client {
         self.events.subscribe()
     }
 
+    /// The boot nonce of the controller start-up this client last shook hands with.
+    pub fn boot_nonce(&self) -> Option<u64> {
+        self.identity
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .as_ref()
+            .map(|identity| identity.boot_nonce)
+    }
+
     /// Allocates a fresh request id.
     pub fn next_request_id(&self) -> RequestId {
         RequestId(self.next_id.fetch_add(1, Ordering::Relaxed))
@@ -193,19 +215,33 @@ impl Client {
     }
 
     /// Sends a command under a given id, retransmitting with the same id on timeout or
-    /// after a reconnect, so the controller executes it at most once.
+    /// after a reconnect, so the controller executes it at most once. A command with an
+    /// effect is only ever sent to the start-up that got it first: if the controller
+    /// restarted in between, the result is [`ClientError::OutcomeUnknown`].
     pub async fn request_with_id(
         &self,
         id: RequestId,
         command: Command,
     ) -> Result<Reply, ClientError> {
         let request = Request { id, command };
+        let mut sent_to = None;
         let mut last_error = None;
         for _ in 0..self.options.attempts.max(1) {
-            match self.exchange(&request).await {
+            match self.exchange(&request, &mut sent_to).await {
+                Ok(Reply::Error(error)) if error.code == ErrorCode::HANDSHAKE_REQUIRED => {
+                    // The controller no longer knows this session (it restarted on a link
+                    // that stayed up): shake hands again, then see who answers.
+                    tracing::debug!(?id, "controller forgot the session; reconnecting");
+                    self.disconnect().await;
+                    last_error = Some(ClientError::Rejected(error));
+                }
                 Ok(Reply::Error(error)) => return Err(ClientError::Rejected(error)),
                 Ok(reply) => return Ok(reply),
-                Err(error @ (ClientError::VersionMismatch { .. } | ClientError::Rejected(_))) => {
+                Err(
+                    error @ (ClientError::VersionMismatch { .. }
+                    | ClientError::Rejected(_)
+                    | ClientError::OutcomeUnknown { .. }),
+                ) => {
                     return Err(error);
                 }
                 Err(error) => {
@@ -226,13 +262,18 @@ impl Client {
     }
 
     /// One attempt: (re)connect if needed, send, wait for the reply or the timeout.
-    async fn exchange(&self, request: &Request) -> Result<Reply, ClientError> {
+    /// `sent_to` is the boot nonce the request went to first (see [`Self::send`]).
+    async fn exchange(
+        &self,
+        request: &Request,
+        sent_to: &mut Option<u64>,
+    ) -> Result<Reply, ClientError> {
         let (sender, receiver) = oneshot::channel();
         self.pending
             .lock()
             .unwrap_or_else(|e| e.into_inner())
             .insert(request.id.0, sender);
-        let sent = self.send(request).await;
+        let sent = self.send(request, sent_to).await;
         let outcome = match sent {
             Ok(()) => match tokio::time::timeout(self.options.request_timeout, receiver).await {
                 Ok(Ok(reply)) => Ok(reply),
@@ -254,12 +295,28 @@ impl Client {
         outcome
     }
 
-    async fn send(&self, request: &Request) -> Result<(), ClientError> {
+    /// Writes `request`, reconnecting first when the link is down. A command with an
+    /// effect goes only to the start-up it was first sent to: `sent_to` records that
+    /// start-up's boot nonce, and another one answering now gives `OutcomeUnknown`.
+    async fn send(&self, request: &Request, sent_to: &mut Option<u64>) -> Result<(), ClientError> {
         let mut connection = self.connection.lock().await;
         let alive = connection.as_ref().is_some_and(|c| !c.reader.is_finished());
         if !alive {
             *connection = None;
             self.open(&mut connection).await?;
+        }
+        if request.command.has_effect() {
+            let boot = self.boot_nonce();
+            match *sent_to {
+                Some(first) if Some(first) != boot => {
+                    return Err(ClientError::OutcomeUnknown {
+                        endpoint: self.endpoint.clone(),
+                        request: request.command.name(),
+                        id: request.id.0,
+                    });
+                }
+                _ => *sent_to = boot,
+            }
         }
         let Some(open) = connection.as_mut() else {
             unreachable!("open() either connects or returns an error")
@@ -450,11 +507,18 @@ impl Client {
         command: Command,
     ) -> Result<MoveReport, ClientError> {
         let mut events = self.events();
+        let name = command.name();
         let duration_ms = match self.request_with_id(id, command).await? {
             Reply::MoveStarted { duration_ms } => duration_ms,
             other => return Err(self.unexpected("Move", other)),
         };
-        self.await_motion(id, duration_ms, &mut events).await
+        let motion = Motion {
+            id,
+            name,
+            boot: self.boot_nonce(),
+            duration_ms,
+        };
+        self.await_motion(&motion, &mut events).await
     }
 
     async fn run_move(&self, command: Command) -> Result<MoveReport, ClientError> {
@@ -462,15 +526,15 @@ impl Client {
         self.run_move_with_id(id, command).await
     }
 
-    /// Waits for the notification that ends motion `id`; if it does not come in time
+    /// Waits for the notification that ends `motion`; if it does not come in time
     /// (for example the link dropped and the notification went to the old connection),
     /// polls the status until every axis is idle.
     async fn await_motion(
         &self,
-        id: RequestId,
-        duration_ms: u32,
+        motion: &Motion,
         events: &mut broadcast::Receiver<Event>,
     ) -> Result<MoveReport, ClientError> {
+        let (id, duration_ms) = (motion.id, motion.duration_ms);
         let expected = Duration::from_millis(u64::from(duration_ms));
         let grace = expected / 2 + Duration::from_millis(500);
         let deadline = tokio::time::Instant::now() + expected + grace;
@@ -495,18 +559,27 @@ impl Client {
                 _ => {}
             }
         }
-        self.poll_until_idle(duration_ms, expected * 2 + Duration::from_secs(5))
+        self.poll_until_idle(motion, expected * 2 + Duration::from_secs(5))
             .await
     }
 
     async fn poll_until_idle(
         &self,
-        duration_ms: u32,
+        motion: &Motion,
         limit: Duration,
     ) -> Result<MoveReport, ClientError> {
+        let duration_ms = motion.duration_ms;
         let started = tokio::time::Instant::now();
         loop {
             let status = self.status().await?;
+            if self.boot_nonce() != motion.boot {
+                // Another start-up answers: the move was cut short by the restart.
+                return Err(ClientError::OutcomeUnknown {
+                    endpoint: self.endpoint.clone(),
+                    request: motion.name,
+                    id: motion.id.0,
+                });
+            }
             if status.axes.iter().all(|axis| !axis.moving) {
                 let reached = status.axes.iter().all(|axis| axis.position == axis.target);
                 let outcome = match (status.emergency_stopped, reached) {
@@ -534,6 +607,16 @@ impl Client {
     pub async fn disconnect(&self) {
         *self.connection.lock().await = None;
     }
+}
+
+/// A move the controller accepted, as the client waits for its end.
+struct Motion {
+    id: RequestId,
+    /// The command's name, for messages.
+    name: &'static str,
+    /// The start-up that accepted it.
+    boot: Option<u64>,
+    duration_ms: u32,
 }
 
 fn to_axis_list(values: &[AxisValue]) -> heapless::Vec<AxisValue, MAX_AXES> {
