@@ -19,6 +19,7 @@ use crate::driver::StepDriver;
 use crate::gear::{Gear, Travel};
 use crate::mark;
 use crate::motion::Move;
+use crate::outcomes::MoveLog;
 use crate::path::effective_backlash;
 use crate::record::{Record, WifiCredentials};
 use crate::replay::ReplyCache;
@@ -63,6 +64,8 @@ pub struct Controller<S: Storage> {
     /// The move that starts when the active one has braked to a stop.
     pub(crate) pending: Option<Move>,
     pub(crate) replies: ReplyCache,
+    /// How the latest moves ended, by request id.
+    pub(crate) moves: MoveLog,
     outbox: Deque<Notification, OUTBOX_LEN>,
     pub(crate) emergency: bool,
     /// Which network session controls the motors (see [`crate::control`]).
@@ -136,6 +139,7 @@ impl<S: Storage> Controller<S> {
             active: None,
             pending: None,
             replies: ReplyCache::new(),
+            moves: MoveLog::new(),
             outbox: Deque::new(),
             emergency: false,
             control: ControlClaim::default(),
@@ -291,7 +295,8 @@ impl<S: Storage> Controller<S> {
             }
             let (request, outcome) = (mv.request(), mv.outcome());
             let end = mv.end_us();
-            out(PeerMessage::Notify(self.move_finished(request, outcome)));
+            let finished = self.finish_move(request, outcome);
+            out(PeerMessage::Notify(finished));
             for axis in self
                 .axes
                 .iter_mut()
@@ -310,11 +315,14 @@ impl<S: Storage> Controller<S> {
         }
     }
 
-    pub(crate) fn move_finished(&self, request: RequestId, outcome: MoveOutcome) -> Notification {
+    /// Records how the move started by `request` ended; returns the notification saying so.
+    pub(crate) fn finish_move(&mut self, request: RequestId, outcome: MoveOutcome) -> Notification {
+        let positions: Vec<i32, MAX_AXES> = self.axes.iter().map(|a| a.position).collect();
+        self.moves.finished(request, outcome, positions.clone());
         Notification::MoveFinished {
             request,
             outcome,
-            positions: self.axes.iter().map(|a| a.position).collect(),
+            positions,
         }
     }
 

@@ -175,6 +175,7 @@ impl<S: Storage> Controller<S> {
                 self.clear_emergency();
                 Ok(Reply::Ok)
             }
+            Command::MoveResult { request } => Ok(Reply::MoveResult(self.moves.lookup(*request))),
         }
     }
 
@@ -325,8 +326,10 @@ impl<S: Storage> Controller<S> {
 
         // Accepted: replace whatever was running or waiting.
         if let Some(waiting) = self.pending.take() {
-            self.queue(self.move_finished(waiting.request(), MoveOutcome::Stopped));
+            let finished = self.finish_move(waiting.request(), MoveOutcome::Stopped);
+            self.queue(finished);
         }
+        self.moves.started(id);
         self.active = braking;
         // (A move that already ran out but was not yet polled ends in the past.)
         let start = self.active.as_ref().map_or(now, Move::end_us).max(now);
@@ -344,7 +347,8 @@ impl<S: Storage> Controller<S> {
 
     fn stop_motion(&mut self, now: u64) {
         if let Some(waiting) = self.pending.take() {
-            self.queue(self.move_finished(waiting.request(), MoveOutcome::Stopped));
+            let finished = self.finish_move(waiting.request(), MoveOutcome::Stopped);
+            self.queue(finished);
         }
         if let Some(mv) = self.active.as_mut() {
             mv.stop(now);
@@ -366,10 +370,12 @@ impl<S: Storage> Controller<S> {
                     });
                 }
             }
-            self.queue(self.move_finished(mv.request(), MoveOutcome::EmergencyStopped));
+            let finished = self.finish_move(mv.request(), MoveOutcome::EmergencyStopped);
+            self.queue(finished);
         }
         if let Some(waiting) = self.pending.take() {
-            self.queue(self.move_finished(waiting.request(), MoveOutcome::EmergencyStopped));
+            let finished = self.finish_move(waiting.request(), MoveOutcome::EmergencyStopped);
+            self.queue(finished);
         }
         for axis in self.axes.iter_mut().filter(|a| a.powered) {
             axis.cut_pending = true;

@@ -29,6 +29,7 @@ pub mod driver;
 pub mod gear;
 pub mod mark;
 mod motion;
+mod outcomes;
 pub mod path;
 pub mod ramp;
 pub mod record;

@@ -27,7 +27,11 @@ impl Cached {
             Reply::MoveStarted { duration_ms } => Some(Self::MoveStarted(*duration_ms)),
             Reply::Ok => Some(Self::Ok),
             Reply::Error(error) => Some(Self::Error(error.clone())),
-            Reply::Hello(_) | Reply::Status(_) | Reply::Config(_) | Reply::Challenge { .. } => None,
+            Reply::Hello(_)
+            | Reply::Status(_)
+            | Reply::Config(_)
+            | Reply::Challenge { .. }
+            | Reply::MoveResult(_) => None,
         }
     }
 

@@ -1,6 +1,6 @@
 //! When things go wrong, against simulated peers on 127.0.0.1: the emergency latch through
-//! the `optalign` command, a peer killed in the middle of a move, and a peer restarted
-//! between a move and its retransmission.
+//! the `optalign` command, a peer killed in the middle of a move, a peer restarted between
+//! a move and its retransmission or during the move, and a move's end the client missed.
 
 use std::net::SocketAddr;
 use std::path::Path;
@@ -9,9 +9,9 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
-use optalign::link::{Client, ClientError, ClientOptions, Endpoint};
+use optalign::link::{Client, ClientError, ClientOptions, Endpoint, Unknown};
 use optalign::peer::{PeerOptions, SimPeer, TimeMode};
-use optalign_protocol::{AxisValue, Command, auth};
+use optalign_protocol::{AxisValue, Command, Faults, MoveOutcome, Reply, Request, RequestId, auth};
 use tokio::io::{AsyncBufReadExt, AsyncReadExt, AsyncWriteExt, BufReader};
 use tokio::net::{TcpListener, TcpStream};
 use tokio::process::Child;
@@ -316,12 +316,18 @@ async fn a_move_whose_controller_restarted_before_answering_runs_once_and_is_unk
             error,
             ClientError::OutcomeUnknown {
                 request: "MoveBy",
+                why: Unknown::Restarted,
                 ..
             }
         ),
         "{error}"
     );
-    assert!(error.to_string().contains("outcome is unknown"), "{error}");
+    assert!(
+        error
+            .to_string()
+            .contains("is unknown: the controller restarted"),
+        "{error}"
+    );
     assert_ne!(
         client.boot_nonce(),
         booted,
@@ -332,4 +338,114 @@ async fn a_move_whose_controller_restarted_before_answering_runs_once_and_is_unk
     assert_eq!(second.shaft_positions(), [500, 0]);
     assert_eq!(client.status().await.unwrap().axes[0].position, 500);
     assert!(!second.core().is_moving());
+}
+
+/// A move of axis 0 far enough to take a while.
+fn long_move() -> Command {
+    Command::MoveTo {
+        targets: [AxisValue {
+            axis: 0,
+            steps: 20_000,
+        }]
+        .into_iter()
+        .collect(),
+    }
+}
+
+/// Waits until `peer` has made steps of the move in progress.
+async fn under_way(peer: &SimPeer) {
+    for _ in 0..500 {
+        if peer.core().is_moving() && peer.shaft_positions()[0] > 0 {
+            return;
+        }
+        tokio::time::sleep(Duration::from_millis(5)).await;
+    }
+    panic!("the move never got under way");
+}
+
+/// A client with the test key through `relay`.
+async fn relayed_client(relay: &Relay) -> Client {
+    Client::connect(relay.endpoint(), client_options())
+        .await
+        .unwrap()
+}
+
+#[tokio::test]
+async fn a_stop_whose_notification_was_lost_is_reported_as_stopped() {
+    let (peer, address) = peer(TimeMode::Scaled(2.0), None).await;
+    let relay = Relay::start(address).await;
+    let client = relayed_client(&relay).await;
+    let moving = client.run_move_with_id(client.next_request_id(), long_move());
+    let interfere = async {
+        under_way(&peer).await;
+        // The client hears nothing more while the move is stopped over the serial link...
+        relay.hold.store(true, Ordering::SeqCst);
+        {
+            let mut core = peer.core();
+            let mut serial = core.serial_session();
+            let stop = Request {
+                id: RequestId(77),
+                command: Command::Stop,
+            };
+            let replies = core.handle(&mut serial, &stop);
+            assert!(
+                matches!(
+                    replies.as_slice(),
+                    [optalign_protocol::PeerMessage::Reply {
+                        reply: Reply::Ok,
+                        ..
+                    }]
+                ),
+                "{replies:?}"
+            );
+        }
+        while peer.core().is_moving() {
+            tokio::time::sleep(Duration::from_millis(5)).await;
+        }
+        // ...and its link drops, taking the MoveFinished with it.
+        relay.hold.store(false, Ordering::SeqCst);
+        relay.cut.send_modify(|n| *n += 1);
+    };
+    let (report, ()) = tokio::join!(moving, interfere);
+    let report = report.unwrap();
+    assert_eq!(report.outcome, MoveOutcome::Stopped);
+    let status = client.status().await.unwrap();
+    let axis = status.axes[0];
+    assert_eq!(report.positions[0], axis.position);
+    assert!(axis.position > 0 && axis.position < 20_000, "{axis:?}");
+    // Idle, the axis's target is where it stopped: positions alone would say completed.
+    assert_eq!(axis.target, axis.position);
+}
+
+#[tokio::test]
+async fn a_move_cut_short_by_a_restart_is_reported_unknown() {
+    let dir = tempfile::tempdir().unwrap();
+    let state = dir.path().join("peer.json");
+    let (first, address) = peer(TimeMode::Scaled(1.0), Some(&state)).await;
+    let relay = Relay::start(address).await;
+    let client = relayed_client(&relay).await;
+    let moving = client.run_move_with_id(client.next_request_id(), long_move());
+    let restart = async {
+        under_way(&first).await;
+        first.shutdown();
+        let (second, address) = peer(TimeMode::Scaled(1.0), Some(&state)).await;
+        *relay.upstream.lock().unwrap() = address;
+        relay.cut.send_modify(|n| *n += 1);
+        second
+    };
+    let (outcome, _second) = tokio::join!(moving, restart);
+    let error = outcome.unwrap_err();
+    assert!(
+        matches!(
+            error,
+            ClientError::OutcomeUnknown {
+                request: "MoveTo",
+                why: Unknown::Restarted,
+                ..
+            }
+        ),
+        "{error}"
+    );
+    let status = client.status().await.unwrap();
+    assert!(status.axes[0].faults.has(Faults::POSITION_LOST));
 }

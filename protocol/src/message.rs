@@ -66,6 +66,9 @@ pub enum Command {
     /// Releases the emergency latch so that moves are accepted again (coils stay off until
     /// the next move).
     ClearEmergency,
+    /// Asks how the move started by `request` ended, for a host that missed its
+    /// [`Notification::MoveFinished`]. Allowed without authentication.
+    MoveResult { request: RequestId },
 }
 
 impl Command {
@@ -87,6 +90,7 @@ impl Command {
             Self::AuthChallenge => "AuthChallenge",
             Self::AuthResponse { .. } => "AuthResponse",
             Self::ClearEmergency => "ClearEmergency",
+            Self::MoveResult { .. } => "MoveResult",
         }
     }
 
@@ -98,7 +102,8 @@ impl Command {
             | Self::GetConfig { .. }
             | Self::AuthChallenge
             | Self::AuthResponse { .. }
-            | Self::EmergencyStop => Access::Open,
+            | Self::EmergencyStop
+            | Self::MoveResult { .. } => Access::Open,
             Self::MoveTo { .. }
             | Self::MoveBy { .. }
             | Self::Stop
@@ -115,7 +120,7 @@ impl Command {
     pub fn has_effect(&self) -> bool {
         !matches!(
             self,
-            Self::Status | Self::GetConfig { .. } | Self::Hello { .. }
+            Self::Status | Self::GetConfig { .. } | Self::Hello { .. } | Self::MoveResult { .. }
         )
     }
 }
@@ -167,6 +172,23 @@ pub enum Reply {
         nonce: [u8; NONCE_LEN],
     },
     Error(ErrorReply),
+    /// What became of a move (the answer to [`Command::MoveResult`]).
+    MoveResult(MoveResult),
+}
+
+/// What became of the move a request started, as far as the controller remembers.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub enum MoveResult {
+    /// Not among the moves this start-up of the controller remembers: never accepted, too
+    /// long ago, or started before a restart.
+    Unknown,
+    /// Accepted and not ended yet (running, or waiting for the motion before it to stop).
+    InProgress,
+    /// Ended: how, and the logical positions of all axes then (as in `MoveFinished`).
+    Finished {
+        outcome: MoveOutcome,
+        positions: Vec<i32, MAX_AXES>,
+    },
 }
 
 /// Who a controller is, and which start-up of it answers.

@@ -95,6 +95,9 @@ fn command() -> impl Strategy<Value = Command> {
         Just(Command::AuthChallenge),
         any::<[u8; 32]>().prop_map(|tag| Command::AuthResponse { tag }),
         Just(Command::ClearEmergency),
+        any::<u32>().prop_map(|request| Command::MoveResult {
+            request: RequestId(request)
+        }),
     ]
 }
 
@@ -207,6 +210,23 @@ fn reply() -> impl Strategy<Value = Reply> {
         config().prop_map(Reply::Config),
         any::<[u8; 16]>().prop_map(|nonce| Reply::Challenge { nonce }),
         error_reply().prop_map(Reply::Error),
+        Just(Reply::MoveResult(MoveResult::Unknown)),
+        Just(Reply::MoveResult(MoveResult::InProgress)),
+        (
+            prop_oneof![
+                Just(MoveOutcome::Completed),
+                Just(MoveOutcome::Stopped),
+                Just(MoveOutcome::EmergencyStopped),
+                Just(MoveOutcome::Faulted),
+            ],
+            prop::collection::vec(any::<i32>(), 0..=MAX_AXES)
+        )
+            .prop_map(
+                |(outcome, positions)| Reply::MoveResult(MoveResult::Finished {
+                    outcome,
+                    positions: positions.into_iter().collect(),
+                })
+            ),
     ]
 }
 

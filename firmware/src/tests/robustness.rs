@@ -86,6 +86,7 @@ fn command() -> impl Strategy<Value = Command> {
         2 => Just(Command::Stop),
         1 => Just(Command::EmergencyStop),
         2 => Just(Command::ClearEmergency),
+        1 => (0u32..12).prop_map(|request| Command::MoveResult { request: RequestId(request) }),
         1 => (0u8..4, prop_oneof![-3000i32..3000, any::<i32>()])
             .prop_map(|(axis, position)| Command::SetPosition { axis, position }),
         1 => (0u8..4).prop_map(|axis| Command::GetConfig { axis }),

@@ -20,7 +20,8 @@ use std::time::Duration;
 use optalign_protocol::auth::{self, Key};
 use optalign_protocol::{
     AxisConfig, AxisValue, Command, ErrorCode, ErrorReply, FrameError, Identity, MAX_AXES,
-    MoveOutcome, Notification, PROTOCOL_VERSION, PeerMessage, Reply, Request, RequestId, Status,
+    MoveOutcome, MoveResult, Notification, PROTOCOL_VERSION, PeerMessage, Reply, Request,
+    RequestId, Status,
 };
 use tokio::io::{AsyncWriteExt, WriteHalf};
 use tokio::sync::{broadcast, oneshot};
@@ -91,13 +92,26 @@ pub enum ClientError {
         waited: Duration,
     },
     #[error(
-        "controller at {endpoint} restarted while {request} (request {id:#010x}) was under way: it was not sent again, and its outcome is unknown"
+        "the outcome of {request} (request {id:#010x}) on controller at {endpoint} is unknown: {why}"
     )]
     OutcomeUnknown {
         endpoint: Endpoint,
         request: &'static str,
         id: u32,
+        why: Unknown,
     },
+}
+
+/// Why the outcome of a request is unknown.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, thiserror::Error)]
+pub enum Unknown {
+    /// The controller restarted while the request was under way (its answer or its end
+    /// not yet seen); it was not sent again.
+    #[error("the controller restarted while it was under way, and it was not sent again")]
+    Restarted,
+    /// The controller no longer remembers the move (too many moves since).
+    #[error("the controller no longer remembers it")]
+    Forgotten,
 }
 
 impl ClientError {
@@ -313,6 +327,7 @@ impl Client {
                         endpoint: self.endpoint.clone(),
                         request: request.command.name(),
                         id: request.id.0,
+                        why: Unknown::Restarted,
                     });
                 }
                 _ => *sent_to = boot,
@@ -474,6 +489,14 @@ impl Client {
         }
     }
 
+    /// What became of the move started by `request`, as the controller remembers it.
+    pub async fn move_result(&self, request: RequestId) -> Result<MoveResult, ClientError> {
+        match self.request(Command::MoveResult { request }).await? {
+            Reply::MoveResult(result) => Ok(result),
+            other => Err(self.unexpected("MoveResult", other)),
+        }
+    }
+
     /// Sends a command whose only good answer is `Ok`.
     pub async fn command_ok(&self, command: Command) -> Result<(), ClientError> {
         let name = command.name();
@@ -528,7 +551,7 @@ impl Client {
 
     /// Waits for the notification that ends `motion`; if it does not come in time
     /// (for example the link dropped and the notification went to the old connection),
-    /// polls the status until every axis is idle.
+    /// asks the controller how the move ended until it has.
     async fn await_motion(
         &self,
         motion: &Motion,
@@ -559,39 +582,39 @@ impl Client {
                 _ => {}
             }
         }
-        self.poll_until_idle(motion, expected * 2 + Duration::from_secs(5))
+        self.ask_result(motion, expected * 2 + Duration::from_secs(5))
             .await
     }
 
-    async fn poll_until_idle(
+    /// Asks `MoveResult` for `motion` until it has ended, or `limit` has passed.
+    async fn ask_result(
         &self,
         motion: &Motion,
         limit: Duration,
     ) -> Result<MoveReport, ClientError> {
-        let duration_ms = motion.duration_ms;
+        let unknown = |why| ClientError::OutcomeUnknown {
+            endpoint: self.endpoint.clone(),
+            request: motion.name,
+            id: motion.id.0,
+            why,
+        };
         let started = tokio::time::Instant::now();
         loop {
-            let status = self.status().await?;
+            let result = self.move_result(motion.id).await?;
             if self.boot_nonce() != motion.boot {
                 // Another start-up answers: the move was cut short by the restart.
-                return Err(ClientError::OutcomeUnknown {
-                    endpoint: self.endpoint.clone(),
-                    request: motion.name,
-                    id: motion.id.0,
-                });
+                return Err(unknown(Unknown::Restarted));
             }
-            if status.axes.iter().all(|axis| !axis.moving) {
-                let reached = status.axes.iter().all(|axis| axis.position == axis.target);
-                let outcome = match (status.emergency_stopped, reached) {
-                    (true, _) => MoveOutcome::EmergencyStopped,
-                    (false, true) => MoveOutcome::Completed,
-                    (false, false) => MoveOutcome::Stopped,
-                };
-                return Ok(MoveReport {
-                    outcome,
-                    positions: status.axes.iter().map(|axis| axis.position).collect(),
-                    duration_ms,
-                });
+            match result {
+                MoveResult::Finished { outcome, positions } => {
+                    return Ok(MoveReport {
+                        outcome,
+                        positions: positions.to_vec(),
+                        duration_ms: motion.duration_ms,
+                    });
+                }
+                MoveResult::Unknown => return Err(unknown(Unknown::Forgotten)),
+                MoveResult::InProgress => {}
             }
             if started.elapsed() > limit {
                 return Err(ClientError::MoveTimeout {
