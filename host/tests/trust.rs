@@ -449,3 +449,60 @@ async fn a_move_cut_short_by_a_restart_is_reported_unknown() {
     let status = client.status().await.unwrap();
     assert!(status.axes[0].faults.has(Faults::POSITION_LOST));
 }
+
+#[tokio::test]
+async fn an_emergency_stop_is_sent_again_to_a_restarted_controller() {
+    let dir = tempfile::tempdir().unwrap();
+    let state = dir.path().join("peer.json");
+    let (first, address) = peer(TimeMode::Instant, Some(&state)).await;
+    let relay = Relay::start(address).await;
+    let client = Client::connect(
+        relay.endpoint(),
+        ClientOptions {
+            request_timeout: Duration::from_millis(500),
+            ..client_options()
+        },
+    )
+    .await
+    .unwrap();
+    relay.hold.store(true, Ordering::SeqCst);
+    let stopping = client.command_ok(Command::EmergencyStop);
+    let restart = async {
+        for _ in 0..200 {
+            if latched(&first) {
+                break;
+            }
+            tokio::time::sleep(Duration::from_millis(5)).await;
+        }
+        assert!(latched(&first), "the first start-up stopped");
+        first.shutdown();
+        let (second, address) = peer(TimeMode::Instant, Some(&state)).await;
+        assert!(!latched(&second), "a restart forgets the latch");
+        *relay.upstream.lock().unwrap() = address;
+        relay.hold.store(false, Ordering::SeqCst);
+        relay.cut.send_modify(|n| *n += 1);
+        second
+    };
+    let (stopped, _second) = tokio::join!(stopping, restart);
+    stopped.unwrap();
+    assert!(client.status().await.unwrap().emergency_stopped);
+}
+
+/// Whether `peer`'s emergency latch is set, read over an in-process serial session.
+fn latched(peer: &SimPeer) -> bool {
+    let mut core = peer.core();
+    let mut serial = core.serial_session();
+    let status = Request {
+        id: RequestId(78),
+        command: Command::Status,
+    };
+    match core.handle(&mut serial, &status).as_slice() {
+        [
+            optalign_protocol::PeerMessage::Reply {
+                reply: Reply::Status(status),
+                ..
+            },
+        ] => status.emergency_stopped,
+        other => panic!("{other:?}"),
+    }
+}

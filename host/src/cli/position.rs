@@ -1,5 +1,4 @@
-//! `optalign set-position`: declares where idle axes are (re-zeroing), which clears a lost
-//! position.
+//! `optalign set-position`: declares where idle axes are (re-zeroing; clears a lost position).
 
 use clap::Args;
 use optalign_protocol::{AxisValue, Command};

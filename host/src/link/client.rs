@@ -311,7 +311,9 @@ impl Client {
 
     /// Writes `request`, reconnecting first when the link is down. A command with an
     /// effect goes only to the start-up it was first sent to: `sent_to` records that
-    /// start-up's boot nonce, and another one answering now gives `OutcomeUnknown`.
+    /// start-up's boot nonce, and another one answering now gives `OutcomeUnknown`. Stops
+    /// are exempt: one run twice is the same as once, and a restarted controller should
+    /// stop too.
     async fn send(&self, request: &Request, sent_to: &mut Option<u64>) -> Result<(), ClientError> {
         let mut connection = self.connection.lock().await;
         let alive = connection.as_ref().is_some_and(|c| !c.reader.is_finished());
@@ -319,7 +321,8 @@ impl Client {
             *connection = None;
             self.open(&mut connection).await?;
         }
-        if request.command.has_effect() {
+        let stop = matches!(request.command, Command::Stop | Command::EmergencyStop);
+        if request.command.has_effect() && !stop {
             let boot = self.boot_nonce();
             match *sent_to {
                 Some(first) if Some(first) != boot => {
