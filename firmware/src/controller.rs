@@ -2,13 +2,14 @@
 //!
 //! Requests are handled in [`crate::dispatch`]; this module owns the time-driven side:
 //! [`Controller::poll`] makes the steps that fell due, finishes moves, powers coils up and
-//! down and writes the record when motion stops.
+//! down, sets the motion mark before a move's first step and writes the record (then
+//! shrinks the mark) when motion stops.
 
 use heapless::{Deque, Vec};
 use optalign_protocol::auth::Key;
 use optalign_protocol::{
-    AxisConfig, AxisStatus, Capabilities, Direction, Faults, MAX_AXES, MoveOutcome, Notification,
-    PeerMessage, RequestId, SessionState, Status,
+    AxisConfig, AxisStatus, BootRecord, Capabilities, Direction, Faults, MAX_AXES, MoveOutcome,
+    Notification, PeerMessage, RequestId, SessionState, Status,
 };
 
 use crate::axis::Axis;
@@ -16,11 +17,13 @@ use crate::config::{default_config, validate};
 use crate::control::ControlClaim;
 use crate::driver::StepDriver;
 use crate::gear::{Gear, Travel};
+use crate::mark;
 use crate::motion::Move;
+use crate::outcomes::MoveLog;
 use crate::path::effective_backlash;
 use crate::record::{Record, WifiCredentials};
 use crate::replay::ReplyCache;
-use crate::session::{LinkKind, Session};
+use crate::session::{LinkKind, RngSource, Session};
 use crate::slots::Journal;
 use crate::storage::{Storage, StorageError};
 
@@ -61,10 +64,17 @@ pub struct Controller<S: Storage> {
     /// The move that starts when the active one has braked to a stop.
     pub(crate) pending: Option<Move>,
     pub(crate) replies: ReplyCache,
+    /// How the latest moves ended, by request id.
+    pub(crate) moves: MoveLog,
     outbox: Deque<Notification, OUTBOX_LEN>,
     pub(crate) emergency: bool,
     /// Which network session controls the motors (see [`crate::control`]).
     pub(crate) control: ControlClaim,
+    /// Drawn at start-up; reported in the handshake.
+    pub(crate) boot_nonce: u64,
+    boot: BootRecord,
+    /// The axes the motion mark in storage names (as last read or written).
+    marked: u8,
     boot_us: u64,
     now_us: u64,
     persist_due: bool,
@@ -73,11 +83,17 @@ pub struct Controller<S: Storage> {
 
 impl<S: Storage> Controller<S> {
     /// Starts from the newest valid record in `storage`. A blank storage is a fresh board
-    /// (defaults, positions 0, no fault); a storage whose records are all corrupt gives the
-    /// defaults with `Faults::POSITION_LOST` on every axis. Coils start off.
-    pub fn new(info: BoardInfo, mut storage: S, now_us: u64) -> Self {
+    /// (defaults, positions 0, no fault, [`BootRecord::NoRecordYet`]); a storage whose
+    /// records are all corrupt gives the defaults with `Faults::POSITION_LOST` on every
+    /// axis; the axes the motion mark names (a reset during their move) are flagged
+    /// `POSITION_LOST` too. Coils start off. `rng` draws the boot nonce.
+    pub fn new(info: BoardInfo, mut storage: S, now_us: u64, rng: &mut dyn RngSource) -> Self {
         let capabilities = Capabilities(info.capabilities);
         let (journal, loaded) = Journal::load(&mut storage);
+        // An unreadable mark is taken to name every axis.
+        let marked = storage
+            .read_mark()
+            .map_or(u8::MAX, |bytes| mark::decode(&bytes));
         let mut axes = Vec::new();
         for index in 0..usize::from(info.axes).min(MAX_AXES) {
             let defaults = default_config(capabilities);
@@ -93,8 +109,21 @@ impl<S: Storage> Controller<S> {
                 Err(_) => lost(defaults),
                 Ok(None) => Axis::new(defaults),
             };
+            let axis = if marked & bit(index) != 0 {
+                lost_at(axis)
+            } else {
+                axis
+            };
             let _ = axes.push(axis);
         }
+        let boot = match (&loaded, marked) {
+            (Err(_), _) => BootRecord::Unreadable,
+            (Ok(_), 1..) => BootRecord::InterruptedMove,
+            (Ok(None), 0) => BootRecord::NoRecordYet,
+            (Ok(Some(_)), 0) => BootRecord::Restored,
+        };
+        let mut nonce = [0u8; 8];
+        rng.fill(&mut nonce);
         let (key, wifi) = match loaded {
             Ok(Some(record)) => (record.key, record.wifi),
             Ok(None) | Err(_) => (None, None),
@@ -110,9 +139,13 @@ impl<S: Storage> Controller<S> {
             active: None,
             pending: None,
             replies: ReplyCache::new(),
+            moves: MoveLog::new(),
             outbox: Deque::new(),
             emergency: false,
             control: ControlClaim::default(),
+            boot_nonce: u64::from_le_bytes(nonce),
+            boot,
+            marked,
             boot_us: now_us,
             now_us,
             persist_due: false,
@@ -235,7 +268,10 @@ impl<S: Storage> Controller<S> {
                     return;
                 }
                 mv.mark_started();
-                for index in mv.stepping_axes() {
+                let stepping: Vec<u8, MAX_AXES> = mv.stepping_axes().collect();
+                // Before the first step: a reset from here on finds these axes marked.
+                self.update_mark(Shrink::No);
+                for index in stepping {
                     if let Some(axis) = self.axes.get_mut(usize::from(index)) {
                         axis.power_down_at = None;
                         if !axis.powered {
@@ -244,6 +280,7 @@ impl<S: Storage> Controller<S> {
                         }
                     }
                 }
+                continue;
             }
             if let Some(step) = mv.take_step(now) {
                 if let Some(axis) = self.axes.get_mut(usize::from(step.axis)) {
@@ -258,7 +295,8 @@ impl<S: Storage> Controller<S> {
             }
             let (request, outcome) = (mv.request(), mv.outcome());
             let end = mv.end_us();
-            out(PeerMessage::Notify(self.move_finished(request, outcome)));
+            let finished = self.finish_move(request, outcome);
+            out(PeerMessage::Notify(finished));
             for axis in self
                 .axes
                 .iter_mut()
@@ -277,11 +315,14 @@ impl<S: Storage> Controller<S> {
         }
     }
 
-    pub(crate) fn move_finished(&self, request: RequestId, outcome: MoveOutcome) -> Notification {
+    /// Records how the move started by `request` ended; returns the notification saying so.
+    pub(crate) fn finish_move(&mut self, request: RequestId, outcome: MoveOutcome) -> Notification {
+        let positions: Vec<i32, MAX_AXES> = self.axes.iter().map(|a| a.position).collect();
+        self.moves.finished(request, outcome, positions.clone());
         Notification::MoveFinished {
             request,
             outcome,
-            positions: self.axes.iter().map(|a| a.position).collect(),
+            positions,
         }
     }
 
@@ -298,7 +339,7 @@ impl<S: Storage> Controller<S> {
         self.persist_due = true;
     }
 
-    /// Writes the record now.
+    /// Writes the record now, then shrinks the motion mark to the axes it cannot vouch for.
     pub(crate) fn persist(&mut self) -> Result<(), StorageError> {
         let record = Record {
             key: self.key,
@@ -306,10 +347,41 @@ impl<S: Storage> Controller<S> {
             axes: self.axes.iter().map(Axis::record).collect(),
         };
         let result = self.journal.save(&mut self.storage, &record);
-        if result.is_err() {
-            self.storage_failures = self.storage_failures.saturating_add(1);
+        match result {
+            Ok(()) => self.update_mark(Shrink::Yes),
+            Err(_) => self.storage_failures = self.storage_failures.saturating_add(1),
         }
         result
+    }
+
+    /// Axes whose saved position cannot be trusted: those flagged `POSITION_LOST`, and
+    /// those of the motion running or waiting (bit `n` for axis `n`).
+    fn untrusted_axes(&self) -> u8 {
+        let lost = (0..)
+            .zip(self.axes.iter())
+            .filter(|(_, axis)| axis.faults.has(Faults::POSITION_LOST))
+            .fold(0, |bits, (index, _)| bits | bit(index));
+        [&self.active, &self.pending]
+            .into_iter()
+            .flatten()
+            .flat_map(Move::axes)
+            .fold(lost, |bits, axis| bits | bit(usize::from(axis)))
+    }
+
+    /// Writes the motion mark when the untrusted axes changed (a failure is counted). Only
+    /// a written record vouches for an axis, so only then may the mark drop axes.
+    fn update_mark(&mut self, shrink: Shrink) {
+        let wanted = match shrink {
+            Shrink::Yes => self.untrusted_axes(),
+            Shrink::No => self.untrusted_axes() | self.marked,
+        };
+        if wanted == self.marked {
+            return;
+        }
+        match self.storage.write_mark(&mark::encode(wanted)) {
+            Ok(()) => self.marked = wanted,
+            Err(_) => self.storage_failures = self.storage_failures.saturating_add(1),
+        }
     }
 
     /// Where each axis comes to rest once `motion` (a move already told to stop) has run out.
@@ -387,6 +459,7 @@ impl<S: Storage> Controller<S> {
             },
             emergency_stopped: self.emergency,
             uptime_ms: now.saturating_sub(self.boot_us) / 1000,
+            boot: self.boot,
         }
     }
 
@@ -395,9 +468,28 @@ impl<S: Storage> Controller<S> {
     }
 }
 
+/// Whether a mark update may drop axes.
+#[derive(Clone, Copy)]
+enum Shrink {
+    Yes,
+    No,
+}
+
 /// A fresh axis whose position could not be restored.
 fn lost(config: AxisConfig) -> Axis {
-    let mut axis = Axis::new(config);
+    lost_at(Axis::new(config))
+}
+
+/// `axis` with its position flagged lost.
+fn lost_at(mut axis: Axis) -> Axis {
     axis.faults.0 |= Faults::POSITION_LOST;
     axis
+}
+
+/// The mark bit of axis `index` (none beyond the eighth).
+fn bit(index: usize) -> u8 {
+    u32::try_from(index)
+        .ok()
+        .and_then(|i| 1u8.checked_shl(i))
+        .unwrap_or(0)
 }

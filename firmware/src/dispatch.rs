@@ -6,6 +6,12 @@
 //! reconnected gets its retransmission answered even while its old connection still holds
 //! control), then the single-controller rule (see [`crate::control`]), then the command.
 //!
+//! `Stop` and `EmergencyStop` are never answered from the reply memory nor kept in it: they
+//! run every time they arrive, and a flood of them cannot push another client's remembered
+//! replies out. An emergency stop latches motion off (`emergency-stopped`) until
+//! `ClearEmergency`, a control command, so only the controlling client (or the serial link)
+//! releases it.
+//!
 //! A move arriving while another runs replaces it: the running move brakes to a stop along
 //! its ramps (its `MoveFinished` says `Stopped`), and the new one is planned from where the
 //! axes come to rest (known exactly at once, since braking is deterministic) and starts
@@ -78,6 +84,8 @@ impl<S: Storage> Controller<S> {
         }
         self.check_access(session, command)?;
         if !ReplyCache::applies_to(command) {
+            // Never remembered: runs every time it arrives (stops, reads, the handshake).
+            self.admit(session, command)?;
             return self.execute(session, request.id, command, now, rng);
         }
         let fingerprint = ReplyCache::fingerprint(command);
@@ -163,6 +171,11 @@ impl<S: Storage> Controller<S> {
             }
             Command::AuthChallenge => self.challenge(session, rng),
             Command::AuthResponse { tag } => self.authenticate(session, tag),
+            Command::ClearEmergency => {
+                self.clear_emergency();
+                Ok(Reply::Ok)
+            }
+            Command::MoveResult { request } => Ok(Reply::MoveResult(self.moves.lookup(*request))),
         }
     }
 
@@ -182,6 +195,7 @@ impl<S: Storage> Controller<S> {
             board_id: self.info.board_id,
             axes: u8::try_from(self.axes.len()).unwrap_or(u8::MAX),
             capabilities: Capabilities(self.info.capabilities),
+            boot_nonce: self.boot_nonce,
         }))
     }
 
@@ -248,6 +262,13 @@ impl<S: Storage> Controller<S> {
         relative: bool,
         now: u64,
     ) -> Result<Reply, ErrorReply> {
+        if self.emergency {
+            return Err(error_reply!(
+                ErrorCode::EMERGENCY_STOPPED,
+                "motion is latched off by an emergency stop: the controlling client must send \
+                 ClearEmergency first"
+            ));
+        }
         // Where the running motion would come to rest if told to stop now.
         let mut braking = self.active.clone();
         if let Some(mv) = braking.as_mut() {
@@ -267,6 +288,14 @@ impl<S: Storage> Controller<S> {
             let (Some(axis), Some(rest)) = (self.axes.get(index), rest.get(index)) else {
                 return Err(internal("axis vanished"));
             };
+            if axis.faults.has(Faults::POSITION_LOST) {
+                return Err(error_reply!(
+                    ErrorCode::AXIS_FAULT,
+                    "axis {}: position lost (reset mid-move or unreadable record): re-zero it with \
+                     SetPosition",
+                    value.axis
+                ));
+            }
             let limits = axis.config.limits;
             let target = if relative {
                 i64::from(rest.position) + i64::from(value.steps)
@@ -297,8 +326,10 @@ impl<S: Storage> Controller<S> {
 
         // Accepted: replace whatever was running or waiting.
         if let Some(waiting) = self.pending.take() {
-            self.queue(self.move_finished(waiting.request(), MoveOutcome::Stopped));
+            let finished = self.finish_move(waiting.request(), MoveOutcome::Stopped);
+            self.queue(finished);
         }
+        self.moves.started(id);
         self.active = braking;
         // (A move that already ran out but was not yet polled ends in the past.)
         let start = self.active.as_ref().map_or(now, Move::end_us).max(now);
@@ -309,10 +340,6 @@ impl<S: Storage> Controller<S> {
         } else {
             self.active = Some(planned);
         }
-        self.emergency = false;
-        for axis in self.axes.iter_mut() {
-            axis.faults.0 &= !Faults::EMERGENCY_STOP;
-        }
         Ok(Reply::MoveStarted {
             duration_ms: u32::try_from(duration_us.div_ceil(1000)).unwrap_or(u32::MAX),
         })
@@ -320,7 +347,8 @@ impl<S: Storage> Controller<S> {
 
     fn stop_motion(&mut self, now: u64) {
         if let Some(waiting) = self.pending.take() {
-            self.queue(self.move_finished(waiting.request(), MoveOutcome::Stopped));
+            let finished = self.finish_move(waiting.request(), MoveOutcome::Stopped);
+            self.queue(finished);
         }
         if let Some(mv) = self.active.as_mut() {
             mv.stop(now);
@@ -328,7 +356,7 @@ impl<S: Storage> Controller<S> {
     }
 
     /// Stops every axis where it is, releases the coils (at the next poll, which is due at
-    /// once) and latches the emergency state until the next accepted move.
+    /// once) and latches motion off until [`Command::ClearEmergency`].
     fn emergency_stop(&mut self) {
         self.emergency = true;
         if let Some(mv) = self.active.take() {
@@ -342,16 +370,26 @@ impl<S: Storage> Controller<S> {
                     });
                 }
             }
-            self.queue(self.move_finished(mv.request(), MoveOutcome::EmergencyStopped));
+            let finished = self.finish_move(mv.request(), MoveOutcome::EmergencyStopped);
+            self.queue(finished);
         }
         if let Some(waiting) = self.pending.take() {
-            self.queue(self.move_finished(waiting.request(), MoveOutcome::EmergencyStopped));
+            let finished = self.finish_move(waiting.request(), MoveOutcome::EmergencyStopped);
+            self.queue(finished);
         }
         for axis in self.axes.iter_mut().filter(|a| a.powered) {
             axis.cut_pending = true;
             axis.power_down_at = None;
         }
         self.persist_soon();
+    }
+
+    /// Releases the emergency latch; the coils stay off until the next move.
+    fn clear_emergency(&mut self) {
+        self.emergency = false;
+        for axis in self.axes.iter_mut() {
+            axis.faults.0 &= !Faults::EMERGENCY_STOP;
+        }
     }
 
     fn set_position(&mut self, axis: u8, position: i32) -> Result<Reply, ErrorReply> {

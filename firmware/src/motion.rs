@@ -168,6 +168,11 @@ impl Move {
         }
     }
 
+    /// The axes taking part.
+    pub fn axes(&self) -> impl Iterator<Item = u8> + '_ {
+        self.targets.iter().map(|t| t.axis)
+    }
+
     /// The logical target of `axis`, if it takes part.
     pub fn target(&self, axis: u8) -> Option<i32> {
         self.targets

@@ -1,6 +1,6 @@
 //! The request-id memory that makes retries safe.
 //!
-//! The replies to the last [`CAPACITY`] requests with an effect are kept, keyed by request
+//! The replies to the last [`CAPACITY`] requests with an effect (stops excepted) are kept, keyed by request
 //! id and a fingerprint (CRC-32C) of the command, in one memory for all sessions: a client
 //! that reconnects and retransmits gets the cached reply and nothing runs twice. A known id
 //! carrying a different command is a new request (two clients may pick the same id).
@@ -27,7 +27,11 @@ impl Cached {
             Reply::MoveStarted { duration_ms } => Some(Self::MoveStarted(*duration_ms)),
             Reply::Ok => Some(Self::Ok),
             Reply::Error(error) => Some(Self::Error(error.clone())),
-            Reply::Hello(_) | Reply::Status(_) | Reply::Config(_) | Reply::Challenge { .. } => None,
+            Reply::Hello(_)
+            | Reply::Status(_)
+            | Reply::Config(_)
+            | Reply::Challenge { .. }
+            | Reply::MoveResult(_) => None,
         }
     }
 
@@ -63,12 +67,17 @@ impl ReplyCache {
     }
 
     /// Whether a command's reply belongs here: it has an effect beyond its session.
-    /// Authentication only concerns the session that asks, so it is never replayed.
+    /// Authentication only concerns the session that asks, so it is never replayed; stops
+    /// always run (running one twice is the same as once) and never take a place here, so
+    /// that anyone's stops cannot push the controlling client's replies out.
     pub fn applies_to(command: &Command) -> bool {
         command.has_effect()
             && !matches!(
                 command,
-                Command::AuthChallenge | Command::AuthResponse { .. }
+                Command::AuthChallenge
+                    | Command::AuthResponse { .. }
+                    | Command::Stop
+                    | Command::EmergencyStop
             )
     }
 
@@ -162,7 +171,9 @@ mod tests {
     #[test]
     fn what_is_replayed() {
         assert!(ReplyCache::applies_to(&move_to(0)));
-        assert!(ReplyCache::applies_to(&Command::EmergencyStop));
+        assert!(ReplyCache::applies_to(&Command::ClearEmergency));
+        assert!(!ReplyCache::applies_to(&Command::EmergencyStop));
+        assert!(!ReplyCache::applies_to(&Command::Stop));
         assert!(!ReplyCache::applies_to(&Command::Status));
         assert!(!ReplyCache::applies_to(&Command::AuthChallenge));
         assert!(!ReplyCache::applies_to(&Command::AuthResponse {

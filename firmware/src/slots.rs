@@ -122,6 +122,7 @@ mod tests {
             journal.save(&mut storage, &record(2)).unwrap();
             storage.tear_next_write(keep);
             journal.save(&mut storage, &record(3)).unwrap();
+            let mut storage = storage.power_cycled();
             let (mut journal, loaded) = Journal::load(&mut storage);
             assert_eq!(loaded, Ok(Some(record(2))), "torn after {keep} bytes");
             // The next write goes over the torn slot, not the good one.

@@ -1,9 +1,12 @@
-//! Persistent storage of fixed-size slots, and an in-memory implementation.
+//! Persistent storage of fixed-size slots and the motion mark, and an in-memory
+//! implementation.
 //!
 //! The record journal (see [`crate::record`]) uses two slots of at least
 //! [`RECORD_LEN`] bytes each. On flash a slot is one erase
-//! sector; `write` programs into an erased slot.
+//! sector; `write` programs into an erased slot. The motion mark (see [`crate::mark`])
+//! lives apart from the slots, where it can be set without holding up a move.
 
+use crate::mark::MARK_LEN;
 use crate::record::RECORD_LEN;
 
 /// Why a storage operation failed.
@@ -27,15 +30,24 @@ pub trait Storage {
     fn erase(&mut self, slot: u8) -> Result<(), StorageError>;
     /// Programs `data` at the start of the erased `slot`.
     fn write(&mut self, slot: u8, data: &[u8]) -> Result<(), StorageError>;
+    /// Reads the motion mark.
+    fn read_mark(&mut self) -> Result<[u8; MARK_LEN], StorageError>;
+    /// Replaces the motion mark. A mark naming more axes than the one in force holds from
+    /// the moment this returns; one naming fewer may wait until the slot writes made
+    /// before it are durable, and never takes effect before them.
+    fn write_mark(&mut self, mark: &[u8; MARK_LEN]) -> Result<(), StorageError>;
 }
 
-/// Two slots in RAM: for tests and the simulated peer, which saves [`Self::as_bytes`] to a
-/// file and restores it with [`Self::from_bytes`]. It can fail on demand and simulate a
-/// power loss in the middle of a write.
+/// Two slots and the mark in RAM: for tests and the simulated peer, which saves
+/// [`Self::as_bytes`] to a file and restores it with [`Self::from_bytes`]. It can fail on
+/// demand and simulate a power loss in the middle of a write.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct RamStorage {
-    bytes: [u8; 2 * RECORD_LEN],
+    /// Slot 0, slot 1, then the mark.
+    bytes: [u8; 2 * RECORD_LEN + MARK_LEN],
     tear_after: Option<usize>,
+    /// Power failed in a torn write: nothing is stored any more.
+    dead: bool,
     failing: bool,
     writes: u32,
 }
@@ -50,8 +62,9 @@ impl RamStorage {
     /// Both slots erased, as on a fresh board.
     pub fn new() -> Self {
         Self {
-            bytes: [0xFF; 2 * RECORD_LEN],
+            bytes: [0xFF; 2 * RECORD_LEN + MARK_LEN],
             tear_after: None,
+            dead: false,
             failing: false,
             writes: 0,
         }
@@ -66,7 +79,13 @@ impl RamStorage {
         storage
     }
 
-    /// The raw contents of both slots.
+    /// The contents as a controller started after a power cut finds them (writing works
+    /// again).
+    pub fn power_cycled(&self) -> Self {
+        Self::from_bytes(self.as_bytes())
+    }
+
+    /// The raw contents of both slots and the mark.
     pub fn as_bytes(&self) -> &[u8] {
         &self.bytes
     }
@@ -76,7 +95,8 @@ impl RamStorage {
         &mut self.bytes
     }
 
-    /// The next write stores only its first `bytes` bytes, as if power failed there.
+    /// The next write stores only its first `bytes` bytes, as if power failed there:
+    /// nothing written after it (slots or mark) is stored, until [`Self::power_cycled`].
     pub fn tear_next_write(&mut self, bytes: usize) {
         self.tear_after = Some(bytes);
     }
@@ -115,7 +135,9 @@ impl Storage for RamStorage {
         if self.failing {
             return Err(StorageError::Device);
         }
-        self.slot(slot)?.fill(0xFF);
+        if !self.dead {
+            self.slot(slot)?.fill(0xFF);
+        }
         Ok(())
     }
 
@@ -123,13 +145,34 @@ impl Storage for RamStorage {
         if self.failing {
             return Err(StorageError::Device);
         }
-        let keep = self.tear_after.take().unwrap_or(data.len()).min(data.len());
+        if self.dead {
+            return Ok(());
+        }
+        let torn = self.tear_after.take();
+        let keep = torn.unwrap_or(data.len()).min(data.len());
         let dst = self
             .slot(slot)?
             .get_mut(..data.len())
             .ok_or(StorageError::OutOfRange)?;
         dst[..keep].copy_from_slice(&data[..keep]);
         self.writes += 1;
+        self.dead = torn.is_some();
+        Ok(())
+    }
+
+    fn read_mark(&mut self) -> Result<[u8; MARK_LEN], StorageError> {
+        let mut mark = [0xFF; MARK_LEN];
+        mark.copy_from_slice(&self.bytes[2 * RECORD_LEN..]);
+        Ok(mark)
+    }
+
+    fn write_mark(&mut self, mark: &[u8; MARK_LEN]) -> Result<(), StorageError> {
+        if self.failing {
+            return Err(StorageError::Device);
+        }
+        if !self.dead {
+            self.bytes[2 * RECORD_LEN..].copy_from_slice(mark);
+        }
         Ok(())
     }
 }

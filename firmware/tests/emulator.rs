@@ -108,7 +108,7 @@ struct Oracle {
 impl Oracle {
     fn new() -> Self {
         Self {
-            core: Controller::new(board(), RamStorage::new(), 0),
+            core: Controller::new(board(), RamStorage::new(), 0, &mut NoRng),
             session: Session::new(LinkKind::Serial),
             pins: Recorder {
                 now: 0,

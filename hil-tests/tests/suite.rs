@@ -166,6 +166,7 @@ async fn the_client_refuses_a_peer_of_another_version() {
                 board_id: 1,
                 axes: 1,
                 capabilities: Capabilities(0),
+                boot_nonce: 1,
             };
             let reply = PeerMessage::Reply {
                 id: request.id,
@@ -498,9 +499,14 @@ async fn emergency_stop_halts_at_once_cuts_the_coils_and_latches() {
     if let Some(sim) = &target.sim {
         assert!(!sim.core().coils_powered(0), "the mount sees its coils off");
     }
-    // The next move clears the latch.
-    client.move_by(&values(&[(0, 10)])).await.unwrap();
+    // Moves are refused until the latch is cleared.
+    let error = client.move_by(&values(&[(0, 10)])).await.unwrap_err();
+    assert_eq!(error.code(), Some(ErrorCode::EMERGENCY_STOPPED), "{error}");
+    assert_eq!(positions(&client).await, stopped_at);
+    client.command_ok(Command::ClearEmergency).await.unwrap();
     assert!(!client.status().await.unwrap().emergency_stopped);
+    client.move_by(&values(&[(0, 10)])).await.unwrap();
+    assert_eq!(positions(&client).await[0], stopped_at[0] + 10);
 }
 
 #[tokio::test]

@@ -41,9 +41,9 @@ impl ErrorCode {
     pub const OUT_OF_LIMITS: Self = Self(41);
     /// A configuration value is out of range.
     pub const INVALID_CONFIG: Self = Self(42);
-    /// Motion is latched off by an emergency stop until the next move request clears it.
+    /// Motion is latched off by an emergency stop until `ClearEmergency`.
     pub const EMERGENCY_STOPPED: Self = Self(43);
-    /// The axis is in a fault state.
+    /// The axis is in a fault state (its position is lost: `SetPosition` declares it).
     pub const AXIS_FAULT: Self = Self(44);
     /// Persistent storage failed.
     pub const STORAGE: Self = Self(50);

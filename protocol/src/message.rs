@@ -3,9 +3,10 @@
 //!
 //! Encoding rule: postcard encodes enum variants by position, so variants and fields are
 //! only ever appended, and any change to an existing layout bumps
-//! [`PROTOCOL_VERSION`](crate::PROTOCOL_VERSION). `Command::Hello` is variant 0 and
-//! `Reply::Hello` carries [`Identity`], whose layout is frozen, so that two different
-//! versions can always tell each other apart.
+//! [`PROTOCOL_VERSION`](crate::PROTOCOL_VERSION). `Command::Hello` is variant 0 and its
+//! layout is frozen, and a peer answers a `Hello` of another version with an error reply
+//! (frozen too) rather than an [`Identity`], so that two different versions can always
+//! tell each other apart.
 
 use heapless::{String, Vec};
 use serde::{Deserialize, Serialize};
@@ -40,7 +41,8 @@ pub enum Command {
     MoveBy { deltas: Vec<AxisValue, MAX_AXES> },
     /// Decelerates every axis to a stop.
     Stop,
-    /// Stops every axis at once and switches the coils off. Allowed without authentication.
+    /// Stops every axis at once, switches the coils off and latches motion off until
+    /// [`Command::ClearEmergency`]. Allowed without authentication.
     EmergencyStop,
     /// Declares the current logical position of an idle axis to be `position`.
     SetPosition { axis: u8, position: i32 },
@@ -61,6 +63,12 @@ pub enum Command {
     AuthChallenge,
     /// Answers the latest challenge with HMAC-SHA256(key, nonce || context).
     AuthResponse { tag: [u8; KEY_LEN] },
+    /// Releases the emergency latch so that moves are accepted again (coils stay off until
+    /// the next move).
+    ClearEmergency,
+    /// Asks how the move started by `request` ended, for a host that missed its
+    /// [`Notification::MoveFinished`]. Allowed without authentication.
+    MoveResult { request: RequestId },
 }
 
 impl Command {
@@ -81,6 +89,8 @@ impl Command {
             Self::SetKey { .. } => "SetKey",
             Self::AuthChallenge => "AuthChallenge",
             Self::AuthResponse { .. } => "AuthResponse",
+            Self::ClearEmergency => "ClearEmergency",
+            Self::MoveResult { .. } => "MoveResult",
         }
     }
 
@@ -92,13 +102,15 @@ impl Command {
             | Self::GetConfig { .. }
             | Self::AuthChallenge
             | Self::AuthResponse { .. }
-            | Self::EmergencyStop => Access::Open,
+            | Self::EmergencyStop
+            | Self::MoveResult { .. } => Access::Open,
             Self::MoveTo { .. }
             | Self::MoveBy { .. }
             | Self::Stop
             | Self::SetPosition { .. }
             | Self::SetConfig { .. }
-            | Self::SaveConfig => Access::Control,
+            | Self::SaveConfig
+            | Self::ClearEmergency => Access::Control,
             Self::ProvisionWifi { .. } | Self::SetKey { .. } => Access::SerialOnly,
         }
     }
@@ -108,7 +120,7 @@ impl Command {
     pub fn has_effect(&self) -> bool {
         !matches!(
             self,
-            Self::Status | Self::GetConfig { .. } | Self::Hello { .. }
+            Self::Status | Self::GetConfig { .. } | Self::Hello { .. } | Self::MoveResult { .. }
         )
     }
 }
@@ -160,9 +172,26 @@ pub enum Reply {
         nonce: [u8; NONCE_LEN],
     },
     Error(ErrorReply),
+    /// What became of a move (the answer to [`Command::MoveResult`]).
+    MoveResult(MoveResult),
 }
 
-/// Who a controller is. Layout frozen across protocol versions.
+/// What became of the move a request started, as far as the controller remembers.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub enum MoveResult {
+    /// Not among the moves this start-up of the controller remembers: never accepted, too
+    /// long ago, or started before a restart.
+    Unknown,
+    /// Accepted and not ended yet (running, or waiting for the motion before it to stop).
+    InProgress,
+    /// Ended: how, and the logical positions of all axes then (as in `MoveFinished`).
+    Finished {
+        outcome: MoveOutcome,
+        positions: Vec<i32, MAX_AXES>,
+    },
+}
+
+/// Who a controller is, and which start-up of it answers.
 #[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
 pub struct Identity {
     pub protocol_version: u16,
@@ -171,6 +200,9 @@ pub struct Identity {
     pub board_id: u64,
     pub axes: u8,
     pub capabilities: Capabilities,
+    /// Drawn at random at every start-up: another value means the controller restarted
+    /// (and forgot its reply memory) since the last handshake.
+    pub boot_nonce: u64,
 }
 
 /// Feature bits a controller advertises.
@@ -195,9 +227,26 @@ impl Capabilities {
 pub struct Status {
     pub axes: Vec<AxisStatus, MAX_AXES>,
     pub session: SessionState,
-    /// Latched by an emergency stop; cleared by the next accepted move.
+    /// Latched by an emergency stop; while set, moves are refused with
+    /// `emergency-stopped` until [`Command::ClearEmergency`].
     pub emergency_stopped: bool,
     pub uptime_ms: u64,
+    /// What the controller found in storage when it started.
+    pub boot: BootRecord,
+}
+
+/// What a controller found in storage at start-up.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub enum BootRecord {
+    /// Nothing was ever saved (a fresh board): positions start at 0 by assumption.
+    NoRecordYet,
+    /// Positions and configuration came back from the saved record.
+    Restored,
+    /// The saved record could not be read: every axis is flagged `POSITION_LOST`.
+    Unreadable,
+    /// The controller was reset while axes were moving (or before a lost position was
+    /// declared again): those axes are flagged `POSITION_LOST`.
+    InterruptedMove,
 }
 
 /// What this connection may do.
@@ -268,7 +317,9 @@ impl Faults {
     pub const EMERGENCY_STOP: u8 = 1 << 0;
     /// The driver reported a fault (STEP/DIR drivers with a fault line).
     pub const DRIVER: u8 = 1 << 1;
-    /// Positions were not restored from storage at start-up.
+    /// The position is not known: the controller was reset while the axis moved, or its
+    /// record was unreadable. Moves of the axis are refused with `axis-fault` until
+    /// `SetPosition` declares where it is.
     pub const POSITION_LOST: u8 = 1 << 2;
 
     pub fn has(self, bit: u8) -> bool {

@@ -94,6 +94,10 @@ fn command() -> impl Strategy<Value = Command> {
         any::<[u8; 32]>().prop_map(|key| Command::SetKey { key }),
         Just(Command::AuthChallenge),
         any::<[u8; 32]>().prop_map(|tag| Command::AuthResponse { tag }),
+        Just(Command::ClearEmergency),
+        any::<u32>().prop_map(|request| Command::MoveResult {
+            request: RequestId(request)
+        }),
     ]
 }
 
@@ -150,26 +154,43 @@ fn error_reply() -> impl Strategy<Value = ErrorReply> {
 
 fn reply() -> impl Strategy<Value = Reply> {
     prop_oneof![
-        (any::<(u16, u64, u8, u32)>(), text::<16>(), text::<24>()).prop_map(
-            |((protocol_version, board_id, axes, caps), firmware_version, board)| {
-                Reply::Hello(Identity {
-                    protocol_version,
+        (
+            any::<(u16, u64, u8, u32, u64)>(),
+            text::<16>(),
+            text::<24>()
+        )
+            .prop_map(
+                |(
+                    (protocol_version, board_id, axes, caps, boot_nonce),
                     firmware_version,
                     board,
-                    board_id,
-                    axes,
-                    capabilities: Capabilities(caps),
-                })
-            }
-        ),
+                )| {
+                    Reply::Hello(Identity {
+                        protocol_version,
+                        firmware_version,
+                        board,
+                        board_id,
+                        axes,
+                        capabilities: Capabilities(caps),
+                        boot_nonce,
+                    })
+                }
+            ),
         (
             prop::collection::vec(axis_status(), 0..=MAX_AXES),
-            any::<(bool, bool, bool, bool, u64)>()
+            any::<(bool, bool, bool, bool, u64)>(),
+            prop_oneof![
+                Just(BootRecord::NoRecordYet),
+                Just(BootRecord::Restored),
+                Just(BootRecord::Unreadable),
+                Just(BootRecord::InterruptedMove),
+            ]
         )
             .prop_map(
                 |(
                     axes,
                     (trusted_link, authenticated, key_provisioned, emergency_stopped, uptime_ms),
+                    boot,
                 )| {
                     Reply::Status(Status {
                         axes: axes.into_iter().collect(),
@@ -180,6 +201,7 @@ fn reply() -> impl Strategy<Value = Reply> {
                         },
                         emergency_stopped,
                         uptime_ms,
+                        boot,
                     })
                 }
             ),
@@ -188,6 +210,23 @@ fn reply() -> impl Strategy<Value = Reply> {
         config().prop_map(Reply::Config),
         any::<[u8; 16]>().prop_map(|nonce| Reply::Challenge { nonce }),
         error_reply().prop_map(Reply::Error),
+        Just(Reply::MoveResult(MoveResult::Unknown)),
+        Just(Reply::MoveResult(MoveResult::InProgress)),
+        (
+            prop_oneof![
+                Just(MoveOutcome::Completed),
+                Just(MoveOutcome::Stopped),
+                Just(MoveOutcome::EmergencyStopped),
+                Just(MoveOutcome::Faulted),
+            ],
+            prop::collection::vec(any::<i32>(), 0..=MAX_AXES)
+        )
+            .prop_map(
+                |(outcome, positions)| Reply::MoveResult(MoveResult::Finished {
+                    outcome,
+                    positions: positions.into_iter().collect(),
+                })
+            ),
     ]
 }
 

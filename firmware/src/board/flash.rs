@@ -11,6 +11,11 @@
 //! slot's record intact. A write that fails is retried and counted ([`FAILED_WRITES`]);
 //! the status LED shows the fault.
 //!
+//! The motion mark lives in the watchdog's scratch registers ([`super::scratch`]). A mark
+//! naming more axes is stored at once; one naming fewer (the record now holds their end
+//! positions) is held back until the changed slots are in flash, and until then the
+//! registers name both marks' axes.
+//!
 //! Layout: slot 0 in the sector at [`STORAGE_OFFSET`], slot 1 in the next one (the
 //! `STORAGE` region of `memory.x`, which the program is never linked into).
 
@@ -23,7 +28,9 @@ use portable_atomic::{AtomicU32, Ordering};
 
 use super::events::LAST_EVENT_US;
 use super::log::{info, warn};
+use super::scratch;
 use super::{SharedCore, now_us};
+use crate::mark::{self, MARK_LEN};
 use crate::record::RECORD_LEN;
 use crate::storage::{Storage, StorageError};
 
@@ -48,6 +55,8 @@ static CHANGED: Signal<CriticalSectionRawMutex, ()> = Signal::new();
 pub struct FlashStorage {
     slots: [[u8; RECORD_LEN]; SLOTS as usize],
     dirty: [bool; SLOTS as usize],
+    /// A mark naming fewer axes, stored once the dirty slots are in flash.
+    held_mark: Option<[u8; MARK_LEN]>,
 }
 
 impl FlashStorage {
@@ -63,6 +72,7 @@ impl FlashStorage {
         Self {
             slots,
             dirty: [false; SLOTS as usize],
+            held_mark: None,
         }
     }
 
@@ -101,6 +111,9 @@ impl FlashStorage {
                 *dirty = false;
             }
         }
+        if let Some(mark) = self.held_mark.take() {
+            scratch::write(&mark);
+        }
         Ok(())
     }
 }
@@ -131,6 +144,22 @@ impl Storage for FlashStorage {
             *byte &= new;
         }
         self.touch(slot);
+        Ok(())
+    }
+
+    fn read_mark(&mut self) -> Result<[u8; MARK_LEN], StorageError> {
+        Ok(scratch::read())
+    }
+
+    fn write_mark(&mut self, new: &[u8; MARK_LEN]) -> Result<(), StorageError> {
+        if self.dirty.iter().any(|&dirty| dirty) {
+            let held = mark::decode(&scratch::read()) | mark::decode(new);
+            scratch::write(&mark::encode(held));
+            self.held_mark = Some(*new);
+        } else {
+            scratch::write(new);
+            self.held_mark = None;
+        }
         Ok(())
     }
 }

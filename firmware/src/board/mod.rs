@@ -28,6 +28,8 @@ pub mod led;
 #[cfg(feature = "board")]
 pub mod pio_steps;
 #[cfg(feature = "board")]
+pub mod scratch;
+#[cfg(feature = "board")]
 pub mod tcp;
 #[cfg(feature = "board")]
 pub mod usb;

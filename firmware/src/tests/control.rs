@@ -171,3 +171,106 @@ fn a_new_key_frees_a_stale_claim() {
         Some(ErrorCode::UNAUTHORIZED)
     );
 }
+
+#[test]
+fn a_flood_of_stops_never_evicts_the_controllers_replies() {
+    let (mut rig, mut first, mut second) = two_clients();
+    let id = RequestId(0xF00D);
+    let command = Command::MoveBy {
+        deltas: values(&[(0, 300)]),
+    };
+    let reply = rig.send_on(&mut first, id, command.clone());
+    assert!(started(&reply));
+    rig.settle();
+    // Far more stops than the reply memory holds, from everyone.
+    let mut stranger = network(&mut rig);
+    for n in 0..4 * crate::replay::CAPACITY as u32 {
+        let stop = rig.send_on(&mut stranger, RequestId(1000 + n), Command::EmergencyStop);
+        assert_eq!(stop, Reply::Ok);
+        let busy = rig.send_on(&mut second, RequestId(2000 + n), Command::Stop);
+        assert_eq!(code(&busy), Some(ErrorCode::BUSY));
+        assert_eq!(
+            rig.send_on(&mut first, RequestId(3000 + n), Command::Stop),
+            Reply::Ok
+        );
+    }
+    assert_eq!(
+        rig.send_on(&mut first, RequestId(4000), Command::ClearEmergency),
+        Reply::Ok
+    );
+    // The controlling client's retransmission is still answered, not run again.
+    assert_eq!(rig.send_on(&mut first, id, command), reply);
+    rig.settle();
+    assert_eq!(rig.position(0), 300);
+    assert_eq!(rig.finished().len(), 1);
+}
+
+#[test]
+fn a_repeated_emergency_stop_runs_every_time() {
+    let (mut rig, mut first, _) = two_clients();
+    let mut stranger = network(&mut rig);
+    let stop = RequestId(50);
+    assert_eq!(
+        rig.send_on(&mut stranger, stop, Command::EmergencyStop),
+        Reply::Ok
+    );
+    assert_eq!(
+        rig.send_on(&mut first, RequestId(10), Command::ClearEmergency),
+        Reply::Ok
+    );
+    let long = Command::MoveTo {
+        targets: values(&[(0, 50_000)]),
+    };
+    assert!(started(&rig.send_on(&mut first, RequestId(11), long)));
+    rig.run_until(rig.now + 200_000);
+    // The same id again: not a cached answer, a second emergency stop.
+    assert_eq!(
+        rig.send_on(&mut stranger, stop, Command::EmergencyStop),
+        Reply::Ok
+    );
+    rig.settle();
+    assert_eq!(
+        rig.finished().last().map(|f| (f.0, f.1)),
+        Some((RequestId(11), MoveOutcome::EmergencyStopped))
+    );
+    assert!(rig.status().emergency_stopped);
+}
+
+#[test]
+fn only_the_controlling_client_or_serial_clears_the_latch() {
+    let (mut rig, mut first, mut second) = two_clients();
+    assert!(started(&rig.send_on(&mut first, RequestId(10), a_move())));
+    let mut stranger = network(&mut rig);
+    assert_eq!(
+        rig.send_on(&mut stranger, RequestId(20), Command::EmergencyStop),
+        Reply::Ok
+    );
+    let reply = rig.send_on(&mut stranger, RequestId(21), Command::ClearEmergency);
+    assert_eq!(code(&reply), Some(ErrorCode::UNAUTHORIZED));
+    let reply = rig.send_on(&mut second, RequestId(22), Command::ClearEmergency);
+    assert_eq!(code(&reply), Some(ErrorCode::BUSY));
+    // The controller is refused a move until it clears the latch itself.
+    let reply = rig.send_on(&mut first, RequestId(11), a_move());
+    assert_eq!(code(&reply), Some(ErrorCode::EMERGENCY_STOPPED));
+    assert!(rig.status().emergency_stopped);
+    let clear = RequestId(12);
+    assert_eq!(
+        rig.send_on(&mut first, clear, Command::ClearEmergency),
+        Reply::Ok
+    );
+    assert!(!rig.status().emergency_stopped);
+    // A retransmitted clear is answered from memory and does not release a newer latch.
+    assert_eq!(
+        rig.send_on(&mut stranger, RequestId(23), Command::EmergencyStop),
+        Reply::Ok
+    );
+    assert_eq!(
+        rig.send_on(&mut first, clear, Command::ClearEmergency),
+        Reply::Ok
+    );
+    assert!(rig.status().emergency_stopped);
+    // The serial link (physical access) may always clear it.
+    rig.ok(Command::ClearEmergency);
+    assert!(!rig.status().emergency_stopped);
+    assert!(started(&rig.send_on(&mut first, RequestId(13), a_move())));
+}

@@ -382,3 +382,28 @@ fn emergency_stop_is_open_to_any_session() {
     rig.settle();
     assert_eq!(rig.finished()[0].1, MoveOutcome::EmergencyStopped);
 }
+
+#[test]
+fn every_start_up_has_its_own_boot_nonce() {
+    let mut rig = Rig::new(1, 0, plain());
+    for id in [1, 2] {
+        let mut session = Session::new(LinkKind::Serial);
+        let hello = Command::Hello {
+            protocol_version: PROTOCOL_VERSION,
+        };
+        let Reply::Hello(identity) = rig.send_on(&mut session, RequestId(id), hello) else {
+            panic!("no identity");
+        };
+        assert_eq!(identity.boot_nonce, rig.controller.boot_nonce);
+    }
+    let nonces: Vec<u64> = (0..8)
+        .map(|seed| {
+            let mut rng = crate::sim::SimRng::new(seed);
+            crate::Controller::new(super::rig::board(1), crate::RamStorage::new(), 0, &mut rng)
+                .boot_nonce
+        })
+        .collect();
+    for (i, nonce) in nonces.iter().enumerate() {
+        assert!(!nonces[i + 1..].contains(nonce), "{nonces:?}");
+    }
+}

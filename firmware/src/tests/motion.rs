@@ -2,7 +2,7 @@
 
 use optalign_protocol::{
     Approach, AxisConfig, BacklashMode, Capabilities, Command, Direction, ErrorCode, Faults,
-    MoveOutcome, Notification, Reply, RequestId,
+    MoveOutcome, MoveResult, Notification, Reply, RequestId,
 };
 use proptest::prelude::*;
 
@@ -263,7 +263,7 @@ fn a_move_waiting_for_a_stop_that_is_replaced_finishes_at_once() {
 }
 
 #[test]
-fn emergency_stop_cuts_at_once_and_latches_until_the_next_move() {
+fn emergency_stop_cuts_at_once_and_latches_until_cleared() {
     let mut rig = Rig::new(2, 0, config(800, 2000, 0));
     rig.send_id(
         RequestId(5),
@@ -308,10 +308,23 @@ fn emergency_stop_cuts_at_once_and_latches_until_the_next_move() {
     assert!(status.axes[0].faults.has(Faults::EMERGENCY_STOP));
     assert!(status.axes[1].faults.is_clear());
     assert!(!status.axes[0].powered);
-    // The next accepted move clears the latch.
-    rig.move_and_settle(&[(0, 0)]);
+    // Moves are refused while latched, and nothing steps.
+    let reason = rig.error(
+        Command::MoveTo {
+            targets: values(&[(0, 0)]),
+        },
+        ErrorCode::EMERGENCY_STOPPED,
+    );
+    assert!(reason.contains("ClearEmergency"), "{reason}");
+    rig.settle();
+    assert_eq!(rig.driver.steps.len(), steps_before);
+    assert!(rig.status().emergency_stopped);
+    // Cleared: the latch and the fault bits go, the coils stay off until the next move.
+    rig.ok(Command::ClearEmergency);
     let status = rig.status();
     assert!(!status.emergency_stopped && status.axes[0].faults.is_clear());
+    assert!(!status.axes[0].powered);
+    rig.move_and_settle(&[(0, 0)]);
     assert_eq!(rig.shaft(0), 0);
     // An emergency stop when idle latches too.
     rig.ok(Command::EmergencyStop);
@@ -445,4 +458,99 @@ fn zero_and_empty_moves_complete() {
     assert_eq!(rig.finished().len(), 2);
     assert!(rig.finished().iter().all(|f| f.1 == MoveOutcome::Completed));
     assert!(rig.driver.steps.is_empty());
+}
+
+#[test]
+fn every_move_keeps_its_result_by_request_id() {
+    let mut rig = Rig::new(2, 0, config(800, 2000, 0));
+    let result = |rig: &mut Rig, id: u32| match rig.send(Command::MoveResult {
+        request: RequestId(id),
+    }) {
+        Reply::MoveResult(result) => result,
+        other => panic!("{other:?}"),
+    };
+    let finished = |outcome, positions: &[i32]| MoveResult::Finished {
+        outcome,
+        positions: positions.iter().copied().collect(),
+    };
+    let move_to = |targets: &[(u8, i32)]| Command::MoveTo {
+        targets: values(targets),
+    };
+    assert_eq!(result(&mut rig, 1), MoveResult::Unknown);
+    // Running, then stopped: the result says so (the axis is idle at its stop position,
+    // where position and target agree).
+    rig.send_id(RequestId(1), move_to(&[(0, 3000)]));
+    rig.run_until(rig.now + 500_000);
+    assert_eq!(result(&mut rig, 1), MoveResult::InProgress);
+    rig.ok(Command::Stop);
+    rig.settle();
+    let stopped_at = rig.position(0);
+    assert!(stopped_at > 0 && stopped_at < 3000, "{stopped_at}");
+    assert_eq!(
+        result(&mut rig, 1),
+        finished(MoveOutcome::Stopped, &[stopped_at, 0])
+    );
+    let status = rig.status();
+    assert!(status.axes.iter().all(|a| a.target == a.position));
+    // Completed.
+    rig.send_id(RequestId(2), move_to(&[(1, 40)]));
+    rig.settle();
+    assert_eq!(
+        result(&mut rig, 2),
+        finished(MoveOutcome::Completed, &[stopped_at, 40])
+    );
+    // A move waiting for another to brake, replaced before it began.
+    rig.send_id(RequestId(3), move_to(&[(0, 0)]));
+    rig.run_until(rig.now + 300_000);
+    rig.send_id(RequestId(4), move_to(&[(1, 0)]));
+    rig.send_id(RequestId(5), move_to(&[(1, 80)]));
+    assert!(matches!(
+        result(&mut rig, 4),
+        MoveResult::Finished {
+            outcome: MoveOutcome::Stopped,
+            ..
+        }
+    ));
+    rig.settle();
+    assert!(matches!(
+        result(&mut rig, 3),
+        MoveResult::Finished {
+            outcome: MoveOutcome::Stopped,
+            ..
+        }
+    ));
+    assert!(matches!(
+        result(&mut rig, 5),
+        MoveResult::Finished {
+            outcome: MoveOutcome::Completed,
+            ..
+        }
+    ));
+    // Emergency-stopped.
+    rig.send_id(RequestId(6), move_to(&[(0, 2000)]));
+    rig.run_until(rig.now + 300_000);
+    rig.ok(Command::EmergencyStop);
+    assert!(matches!(
+        result(&mut rig, 6),
+        MoveResult::Finished {
+            outcome: MoveOutcome::EmergencyStopped,
+            ..
+        }
+    ));
+    // A refused move never started.
+    rig.send_id(RequestId(7), move_to(&[(0, 10)]));
+    assert_eq!(result(&mut rig, 7), MoveResult::Unknown);
+    // Anyone may ask, as anyone may read the status.
+    let mut stranger = super::dispatch::network(&mut rig);
+    let reply = rig.send_on(
+        &mut stranger,
+        RequestId(50),
+        Command::MoveResult {
+            request: RequestId(2),
+        },
+    );
+    assert!(matches!(
+        reply,
+        Reply::MoveResult(MoveResult::Finished { .. })
+    ));
 }

@@ -1,11 +1,13 @@
-//! Positions, configuration and credentials across reboots, torn writes and failing storage.
+//! Positions, configuration and credentials across reboots, resets during moves, torn
+//! writes and failing storage.
 
 use optalign_protocol::{
-    AxisConfig, BacklashMode, Capabilities, Command, ErrorCode, Faults, Reply, Slack,
+    AxisConfig, BacklashMode, BootRecord, Capabilities, Command, ErrorCode, Faults, Reply, Slack,
 };
 
-use super::rig::{CAPABILITIES, Rig};
+use super::rig::{CAPABILITIES, Rig, values};
 use crate::config::default_config;
+use crate::mark;
 use crate::sim::MountModel;
 use crate::{RamStorage, Storage};
 
@@ -17,13 +19,14 @@ fn one_sided(backlash: u16) -> AxisConfig {
     }
 }
 
-/// Powers the rig off and on: same storage and mounts, a new controller.
+/// Powers the rig off and on (or resets it, in the middle of whatever it was doing): same
+/// storage and mounts, a new controller.
 fn reboot(rig: &Rig) -> Rig {
     let axes = rig.status().axes.len() as u8;
     let mounts: Vec<MountModel> = (0..axes)
         .map(|a| rig.driver.sim.mount(a).unwrap().clone())
         .collect();
-    Rig::boot(rig.controller.storage().clone(), mounts, axes)
+    Rig::boot(rig.controller.storage().power_cycled(), mounts, axes)
 }
 
 #[test]
@@ -37,6 +40,7 @@ fn a_fresh_board_starts_at_zero_without_faults() {
     );
     assert!(axis.faults.is_clear() && !axis.powered && !status.emergency_stopped);
     assert!(rig.controller.wifi().is_none() && !status.session.key_provisioned);
+    assert_eq!(status.boot, BootRecord::NoRecordYet, "it says so");
 }
 
 #[test]
@@ -63,6 +67,7 @@ fn state_survives_a_reboot() {
 
     let mut rig = reboot(&rig);
     let after = rig.status();
+    assert_eq!(after.boot, BootRecord::Restored);
     for (a, b) in before.axes.iter().zip(&after.axes) {
         assert_eq!(
             (a.position, a.motor_steps, a.slack),
@@ -108,15 +113,20 @@ fn the_slack_is_saved_for_the_saved_backlash() {
 }
 
 #[test]
-fn a_torn_write_falls_back_to_the_previous_record() {
-    let mut rig = Rig::new(1, 0, one_sided(0));
-    rig.move_and_settle(&[(0, 100)]);
+fn a_torn_write_falls_back_to_the_previous_record_and_flags_the_axis() {
+    let mut rig = Rig::new(2, 0, one_sided(0));
+    rig.move_and_settle(&[(0, 100), (1, 50)]);
     rig.move_and_settle(&[(0, 200)]);
+    // Power fails while the record of the next move's end is written.
     rig.controller.storage_mut().tear_next_write(20);
     rig.move_and_settle(&[(0, 300)]);
     let rig = reboot(&rig);
-    assert_eq!(rig.position(0), 200);
-    assert!(rig.status().axes[0].faults.is_clear());
+    assert_eq!((rig.position(0), rig.position(1)), (200, 50));
+    // The record is the previous one, but the move was marked: its position is not trusted.
+    let status = rig.status();
+    assert!(status.axes[0].faults.has(Faults::POSITION_LOST));
+    assert!(status.axes[1].faults.is_clear());
+    assert_eq!(status.boot, BootRecord::InterruptedMove);
 }
 
 #[test]
@@ -140,15 +150,25 @@ fn corrupt_records_flag_lost_positions() {
             .iter()
             .all(|a| a.faults.has(Faults::POSITION_LOST) && a.position == 0)
     );
+    assert_eq!(status.boot, BootRecord::Unreadable);
     rebooted.ok(Command::SetPosition {
         axis: 0,
         position: 200,
     });
     let status = rebooted.status();
     assert!(status.axes[0].faults.is_clear() && status.axes[1].faults.has(Faults::POSITION_LOST));
-    // The declaration was saved.
-    let again = reboot(&rebooted);
+    // The declaration was saved; the axis not declared stays lost, though the record now
+    // reads.
+    let mut again = reboot(&rebooted);
     assert_eq!(again.position(0), 200);
+    let status = again.status();
+    assert!(status.axes[0].faults.is_clear() && status.axes[1].faults.has(Faults::POSITION_LOST));
+    again.error(
+        Command::MoveTo {
+            targets: values(&[(1, 10)]),
+        },
+        ErrorCode::AXIS_FAULT,
+    );
 }
 
 #[test]
@@ -162,7 +182,8 @@ fn failing_storage_is_reported_and_never_stops_motion() {
     assert!(rig.status().session.key_provisioned);
     rig.move_and_settle(&[(0, 400)]);
     assert_eq!(rig.shaft(0), 400);
-    assert_eq!(rig.controller.storage_failures(), 3);
+    // SaveConfig, SetKey, the motion mark and the record at the end of the move.
+    assert_eq!(rig.controller.storage_failures(), 4);
     rig.controller.storage_mut().set_failing(false);
     rig.ok(Command::SaveConfig);
     assert_eq!(reboot(&rig).position(0), 400);
@@ -180,4 +201,117 @@ fn a_record_with_more_axes_than_the_board_is_fine() {
     let status = more.status();
     assert_eq!(status.axes[2].position, 50);
     assert!(status.axes[3].faults.has(Faults::POSITION_LOST));
+}
+
+#[test]
+fn a_reset_during_a_move_flags_the_moving_axes_until_re_zeroed() {
+    let mut rig = Rig::new(3, 0, super::dispatch::plain());
+    rig.move_and_settle(&[(2, 70)]);
+    rig.move_to(&[(0, 2000), (1, -1000)]);
+    rig.run_until(rig.now + 400_000);
+    let (shaft0, shaft1) = (rig.shaft(0), rig.shaft(1));
+    assert!(shaft0 > 0 && shaft0 < 2000, "{shaft0}");
+    // Reset mid-move: the record still holds the positions from before it.
+    let mut rig = reboot(&rig);
+    let status = rig.status();
+    assert_eq!(status.boot, BootRecord::InterruptedMove);
+    assert!(
+        status.axes[..2]
+            .iter()
+            .all(|a| a.faults.has(Faults::POSITION_LOST))
+    );
+    assert!(status.axes[2].faults.is_clear() && status.axes[2].position == 70);
+    // Lost axes refuse to move, saying how to re-zero; nothing steps.
+    let reason = rig.error(
+        Command::MoveBy {
+            deltas: values(&[(2, 5), (0, 10)]),
+        },
+        ErrorCode::AXIS_FAULT,
+    );
+    assert!(
+        reason.contains("axis 0") && reason.contains("SetPosition"),
+        "{reason}"
+    );
+    rig.settle();
+    assert!(rig.driver.steps.is_empty());
+    // Others still move.
+    rig.move_and_settle(&[(2, 80)]);
+    // Re-zeroing one axis clears it and survives a reset; the other stays lost.
+    rig.ok(Command::SetPosition {
+        axis: 0,
+        position: shaft0,
+    });
+    let mut rig = reboot(&rig);
+    let status = rig.status();
+    assert!(status.axes[0].faults.is_clear() && status.axes[1].faults.has(Faults::POSITION_LOST));
+    assert_eq!(rig.position(0), shaft0);
+    rig.move_and_settle(&[(0, 1500)]);
+    assert_eq!(rig.shaft(0), 1500);
+    rig.ok(Command::SetPosition {
+        axis: 1,
+        position: shaft1,
+    });
+    rig.move_and_settle(&[(1, 0)]);
+    assert_eq!(rig.shaft(1), 0);
+    assert!(
+        reboot(&rig)
+            .status()
+            .axes
+            .iter()
+            .all(|a| a.faults.is_clear())
+    );
+}
+
+#[test]
+fn the_mark_is_set_before_the_first_step_and_cleared_with_the_record() {
+    let marked = |rig: &mut Rig| {
+        let bytes = rig.controller.storage_mut().read_mark().unwrap();
+        mark::decode(&bytes)
+    };
+    let mut rig = Rig::new(3, 0, one_sided(0));
+    rig.move_to(&[(1, 500)]);
+    assert_eq!(marked(&mut rig), 0, "accepted, not started");
+    let first_step = rig.controller.next_deadline_us().unwrap();
+    rig.run_until(first_step);
+    assert_eq!(marked(&mut rig), 0b010);
+    // A move of another axis replacing it adds its axis; the first stays marked until the
+    // record holds where it stopped.
+    rig.move_to(&[(2, 300)]);
+    for _ in 0..1000 {
+        if rig.shaft(2) != 0 {
+            break;
+        }
+        rig.run_until(rig.now + 1_000);
+    }
+    assert_ne!(rig.shaft(2), 0, "the replacing move started");
+    assert_eq!(marked(&mut rig), 0b110);
+    rig.settle();
+    assert_eq!(marked(&mut rig), 0, "the record holds the end positions");
+    // A mark the record write did not clear (power lost) flags the axes at start-up.
+    rig.controller.storage_mut().tear_next_write(0);
+    rig.move_and_settle(&[(0, 10)]);
+    let storage = rig.controller.storage().power_cycled();
+    let rebooted = Rig::boot(storage, (0..3).map(|_| MountModel::new(0)), 3);
+    let lost: Vec<bool> = rebooted
+        .status()
+        .axes
+        .iter()
+        .map(|a| a.faults.has(Faults::POSITION_LOST))
+        .collect();
+    assert_eq!(lost, [true, false, false]);
+}
+
+#[test]
+fn a_garbled_mark_flags_every_axis() {
+    let mut storage = RamStorage::new();
+    storage.write_mark(&[1, 2, 3, 4, 5, 6, 7, 8]).unwrap();
+    let rig = Rig::boot(storage, [MountModel::new(0), MountModel::new(0)], 2);
+    let status = rig.status();
+    assert_eq!(status.boot, BootRecord::InterruptedMove);
+    assert!(
+        status
+            .axes
+            .iter()
+            .all(|a| a.faults.has(Faults::POSITION_LOST))
+    );
 }

@@ -90,7 +90,7 @@ impl Rig {
         axes: u8,
     ) -> Self {
         let mut rig = Self {
-            controller: Controller::new(board(axes), storage, 1_000),
+            controller: Controller::new(board(axes), storage, 1_000, &mut SimRng::new(7)),
             driver: TimedDriver {
                 sim: SimDriver::new(mounts),
                 now: 1_000,

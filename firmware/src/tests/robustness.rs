@@ -85,6 +85,8 @@ fn command() -> impl Strategy<Value = Command> {
         4 => axis_values().prop_map(|deltas| Command::MoveBy { deltas }),
         2 => Just(Command::Stop),
         1 => Just(Command::EmergencyStop),
+        2 => Just(Command::ClearEmergency),
+        1 => (0u32..12).prop_map(|request| Command::MoveResult { request: RequestId(request) }),
         1 => (0u8..4, prop_oneof![-3000i32..3000, any::<i32>()])
             .prop_map(|(axis, position)| Command::SetPosition { axis, position }),
         1 => (0u8..4).prop_map(|axis| Command::GetConfig { axis }),
@@ -130,7 +132,7 @@ fn event() -> impl Strategy<Value = Event> {
 fn random_requests_never_panic() {
     let moves = Cell::new(0);
     let mut runner = TestRunner::new(ProptestConfig {
-        cases: 128,
+        cases: 192,
         failure_persistence: None,
         ..ProptestConfig::default()
     });
@@ -199,7 +201,7 @@ fn random_requests_never_panic() {
                 }
                 Event::TornWrite(bytes) => rig.controller.storage_mut().tear_next_write(bytes),
                 Event::Reboot => {
-                    let storage = rig.controller.storage().clone();
+                    let storage = rig.controller.storage().power_cycled();
                     rig = Rig::boot(storage, (0..3).map(|_| crate::sim::MountModel::new(5)), 3);
                     sessions = links.map(|link| open(&mut rig, link));
                 }

@@ -37,6 +37,10 @@ impl ControllerArgs {
 
     /// Adds what the user can do about a refusal (a missing key, say) to a client error.
     pub fn explain(&self, error: ClientError) -> anyhow::Error {
+        if let ClientError::OutcomeUnknown { .. } = error {
+            return anyhow::Error::new(error)
+                .context("see where the axes are with `optalign status` before moving again");
+        }
         let hint = match error.code() {
             Some(ErrorCode::UNAUTHORIZED) if self.key.is_none() => Some(
                 "this controller needs its access key for motion and configuration over the network: set OPTALIGN_KEY or pass --key",
@@ -44,9 +48,12 @@ impl ControllerArgs {
             Some(ErrorCode::OUT_OF_LIMITS) => Some(
                 "see the axis limits with `optalign status` or change them with `optalign config set AXIS min=.. max=..`",
             ),
-            Some(ErrorCode::EMERGENCY_STOPPED) => {
-                Some("the emergency stop is latched; the next accepted move clears it")
-            }
+            Some(ErrorCode::AXIS_FAULT) => Some(
+                "the axis's position is lost: declare where it is with `optalign set-position AXIS=STEPS` (from a reference or a measurement), then move again",
+            ),
+            Some(ErrorCode::EMERGENCY_STOPPED) => Some(
+                "the emergency stop is latched: release it with `optalign clear-emergency`, then move again",
+            ),
             _ => None,
         };
         match hint {

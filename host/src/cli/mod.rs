@@ -9,6 +9,7 @@ mod demo;
 mod flash;
 mod motion;
 mod peer;
+mod position;
 mod provision;
 mod render;
 mod replay;
@@ -36,8 +37,12 @@ enum Commands {
     Status(status::StatusArgs),
     /// Move axes to absolute targets (or by relative amounts); returns when motion ends.
     Move(motion::MoveArgs),
-    /// Stop all motion: decelerate, or with --emergency cut the coils at once.
+    /// Stop all motion: decelerate, or with --emergency cut the coils at once and latch.
     Stop(motion::StopArgs),
+    /// Release the emergency latch so that moves are accepted again.
+    ClearEmergency(motion::ClearEmergencyArgs),
+    /// Declare where idle axes are (re-zero them); clears a lost position.
+    SetPosition(position::SetPositionArgs),
     /// Read or change per-axis configuration.
     Config(config::ConfigArgs),
     /// Give a controller Wi-Fi credentials and its access key over USB serial.
@@ -68,6 +73,8 @@ impl Cli {
             Commands::Status(args) => status::run(args).await,
             Commands::Move(args) => motion::run_move(args).await,
             Commands::Stop(args) => motion::run_stop(args).await,
+            Commands::ClearEmergency(args) => motion::run_clear_emergency(args).await,
+            Commands::SetPosition(args) => position::run(args).await,
             Commands::Config(args) => config::run(args).await,
             Commands::Provision(args) => provision::run(args).await,
             Commands::Flash(args) => flash::run(args),

@@ -1,4 +1,4 @@
-//! `optalign move` and `optalign stop`.
+//! `optalign move`, `optalign stop` and `optalign clear-emergency`.
 
 use anyhow::bail;
 use clap::Args;
@@ -59,7 +59,9 @@ pub async fn run_stop(args: StopArgs) -> anyhow::Result<()> {
             .command_ok(Command::EmergencyStop)
             .await
             .map_err(|e| args.controller.explain(e))?;
-        println!("emergency stop: all axes stopped, coils off; the next move clears the latch");
+        println!(
+            "emergency stop: all axes stopped, coils off; moves are refused until `optalign clear-emergency`"
+        );
     } else {
         client
             .command_ok(Command::Stop)
@@ -67,5 +69,23 @@ pub async fn run_stop(args: StopArgs) -> anyhow::Result<()> {
             .map_err(|e| args.controller.explain(e))?;
         println!("stop: all axes decelerating to rest");
     }
+    Ok(())
+}
+
+#[derive(Debug, Args)]
+pub struct ClearEmergencyArgs {
+    #[command(flatten)]
+    controller: ControllerArgs,
+}
+
+pub async fn run_clear_emergency(args: ClearEmergencyArgs) -> anyhow::Result<()> {
+    let client = args.controller.connect().await?;
+    client
+        .command_ok(Command::ClearEmergency)
+        .await
+        .map_err(|e| args.controller.explain(e))?;
+    println!(
+        "emergency latch cleared: moves are accepted again (coils power up with the next move)"
+    );
     Ok(())
 }

@@ -1,7 +1,7 @@
 //! `optalign status`: identity and per-axis state, as a table or JSON.
 
 use clap::Args;
-use optalign_protocol::{AxisStatus, Direction, Faults, Identity, Slack, Status};
+use optalign_protocol::{AxisStatus, BootRecord, Direction, Faults, Identity, Slack, Status};
 use serde_json::json;
 
 use super::connect::ControllerArgs;
@@ -56,6 +56,27 @@ fn render_table(endpoint: &str, identity: &Identity, status: &Status) -> String 
             ""
         },
     );
+    out += match status.boot {
+        BootRecord::NoRecordYet => {
+            "record: none yet (nothing saved on this controller): positions start at 0 by assumption\n"
+        }
+        BootRecord::Restored => "record: restored at start-up\n",
+        BootRecord::Unreadable => "record: unreadable at start-up: positions lost\n",
+        BootRecord::InterruptedMove => {
+            "record: the controller was reset during a move: positions of the moving axes lost\n"
+        }
+    };
+    let lost: Vec<String> = (0..)
+        .zip(&status.axes)
+        .filter(|(_, axis)| axis.faults.has(Faults::POSITION_LOST))
+        .map(|(index, _): (usize, _)| index.to_string())
+        .collect();
+    if !lost.is_empty() {
+        out += &format!(
+            "POSITION LOST on axis {}: moves are refused until you declare where it is with `optalign set-position AXIS=STEPS`\n",
+            lost.join(", ")
+        );
+    }
     out += "axis  position     motor    target  moving  dir  slack  limits                 coils  faults\n";
     for (index, axis) in status.axes.iter().enumerate() {
         out += &axis_row(index, axis);

@@ -6,6 +6,11 @@
 //! controller's reply cache makes that safe), reconnects transparently when the link
 //! drops, and turns the controller's unsolicited notifications into a stream. Moves return
 //! once the motion has finished, like a status future in Bluesky/Ophyd.
+//!
+//! The reply cache lives in the controller's RAM, so a retransmission is only safe to the
+//! start-up that saw the first transmission: a command with an effect is never sent again
+//! once the controller's boot nonce has changed, and its outcome is reported as unknown
+//! ([`ClientError::OutcomeUnknown`]).
 
 use std::collections::HashMap;
 use std::sync::atomic::{AtomicU32, Ordering};
@@ -15,7 +20,8 @@ use std::time::Duration;
 use optalign_protocol::auth::{self, Key};
 use optalign_protocol::{
     AxisConfig, AxisValue, Command, ErrorCode, ErrorReply, FrameError, Identity, MAX_AXES,
-    MoveOutcome, Notification, PROTOCOL_VERSION, PeerMessage, Reply, Request, RequestId, Status,
+    MoveOutcome, MoveResult, Notification, PROTOCOL_VERSION, PeerMessage, Reply, Request,
+    RequestId, Status,
 };
 use tokio::io::{AsyncWriteExt, WriteHalf};
 use tokio::sync::{broadcast, oneshot};
@@ -85,6 +91,27 @@ pub enum ClientError {
         endpoint: Endpoint,
         waited: Duration,
     },
+    #[error(
+        "the outcome of {request} (request {id:#010x}) on controller at {endpoint} is unknown: {why}"
+    )]
+    OutcomeUnknown {
+        endpoint: Endpoint,
+        request: &'static str,
+        id: u32,
+        why: Unknown,
+    },
+}
+
+/// Why the outcome of a request is unknown.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, thiserror::Error)]
+pub enum Unknown {
+    /// The controller restarted while the request was under way (its answer or its end
+    /// not yet seen); it was not sent again.
+    #[error("the controller restarted while it was under way, and it was not sent again")]
+    Restarted,
+    /// The controller no longer remembers the move (too many moves since).
+    #[error("the controller no longer remembers it")]
+    Forgotten,
 }
 
 impl ClientError {
@@ -181,6 +208,15 @@ impl Client {
         self.events.subscribe()
     }
 
+    /// The boot nonce of the controller start-up this client last shook hands with.
+    pub fn boot_nonce(&self) -> Option<u64> {
+        self.identity
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .as_ref()
+            .map(|identity| identity.boot_nonce)
+    }
+
     /// Allocates a fresh request id.
     pub fn next_request_id(&self) -> RequestId {
         RequestId(self.next_id.fetch_add(1, Ordering::Relaxed))
@@ -193,19 +229,33 @@ impl Client {
     }
 
     /// Sends a command under a given id, retransmitting with the same id on timeout or
-    /// after a reconnect, so the controller executes it at most once.
+    /// after a reconnect, so the controller executes it at most once. A command with an
+    /// effect is only ever sent to the start-up that got it first: if the controller
+    /// restarted in between, the result is [`ClientError::OutcomeUnknown`].
     pub async fn request_with_id(
         &self,
         id: RequestId,
         command: Command,
     ) -> Result<Reply, ClientError> {
         let request = Request { id, command };
+        let mut sent_to = None;
         let mut last_error = None;
         for _ in 0..self.options.attempts.max(1) {
-            match self.exchange(&request).await {
+            match self.exchange(&request, &mut sent_to).await {
+                Ok(Reply::Error(error)) if error.code == ErrorCode::HANDSHAKE_REQUIRED => {
+                    // The controller no longer knows this session (it restarted on a link
+                    // that stayed up): shake hands again, then see who answers.
+                    tracing::debug!(?id, "controller forgot the session; reconnecting");
+                    self.disconnect().await;
+                    last_error = Some(ClientError::Rejected(error));
+                }
                 Ok(Reply::Error(error)) => return Err(ClientError::Rejected(error)),
                 Ok(reply) => return Ok(reply),
-                Err(error @ (ClientError::VersionMismatch { .. } | ClientError::Rejected(_))) => {
+                Err(
+                    error @ (ClientError::VersionMismatch { .. }
+                    | ClientError::Rejected(_)
+                    | ClientError::OutcomeUnknown { .. }),
+                ) => {
                     return Err(error);
                 }
                 Err(error) => {
@@ -226,13 +276,18 @@ impl Client {
     }
 
     /// One attempt: (re)connect if needed, send, wait for the reply or the timeout.
-    async fn exchange(&self, request: &Request) -> Result<Reply, ClientError> {
+    /// `sent_to` is the boot nonce the request went to first (see [`Self::send`]).
+    async fn exchange(
+        &self,
+        request: &Request,
+        sent_to: &mut Option<u64>,
+    ) -> Result<Reply, ClientError> {
         let (sender, receiver) = oneshot::channel();
         self.pending
             .lock()
             .unwrap_or_else(|e| e.into_inner())
             .insert(request.id.0, sender);
-        let sent = self.send(request).await;
+        let sent = self.send(request, sent_to).await;
         let outcome = match sent {
             Ok(()) => match tokio::time::timeout(self.options.request_timeout, receiver).await {
                 Ok(Ok(reply)) => Ok(reply),
@@ -254,12 +309,32 @@ impl Client {
         outcome
     }
 
-    async fn send(&self, request: &Request) -> Result<(), ClientError> {
+    /// Writes `request`, reconnecting first when the link is down. A command with an
+    /// effect goes only to the start-up it was first sent to: `sent_to` records that
+    /// start-up's boot nonce, and another one answering now gives `OutcomeUnknown`. Stops
+    /// are exempt: one run twice is the same as once, and a restarted controller should
+    /// stop too.
+    async fn send(&self, request: &Request, sent_to: &mut Option<u64>) -> Result<(), ClientError> {
         let mut connection = self.connection.lock().await;
         let alive = connection.as_ref().is_some_and(|c| !c.reader.is_finished());
         if !alive {
             *connection = None;
             self.open(&mut connection).await?;
+        }
+        let stop = matches!(request.command, Command::Stop | Command::EmergencyStop);
+        if request.command.has_effect() && !stop {
+            let boot = self.boot_nonce();
+            match *sent_to {
+                Some(first) if Some(first) != boot => {
+                    return Err(ClientError::OutcomeUnknown {
+                        endpoint: self.endpoint.clone(),
+                        request: request.command.name(),
+                        id: request.id.0,
+                        why: Unknown::Restarted,
+                    });
+                }
+                _ => *sent_to = boot,
+            }
         }
         let Some(open) = connection.as_mut() else {
             unreachable!("open() either connects or returns an error")
@@ -417,6 +492,14 @@ impl Client {
         }
     }
 
+    /// What became of the move started by `request`, as the controller remembers it.
+    pub async fn move_result(&self, request: RequestId) -> Result<MoveResult, ClientError> {
+        match self.request(Command::MoveResult { request }).await? {
+            Reply::MoveResult(result) => Ok(result),
+            other => Err(self.unexpected("MoveResult", other)),
+        }
+    }
+
     /// Sends a command whose only good answer is `Ok`.
     pub async fn command_ok(&self, command: Command) -> Result<(), ClientError> {
         let name = command.name();
@@ -450,11 +533,18 @@ impl Client {
         command: Command,
     ) -> Result<MoveReport, ClientError> {
         let mut events = self.events();
+        let name = command.name();
         let duration_ms = match self.request_with_id(id, command).await? {
             Reply::MoveStarted { duration_ms } => duration_ms,
             other => return Err(self.unexpected("Move", other)),
         };
-        self.await_motion(id, duration_ms, &mut events).await
+        let motion = Motion {
+            id,
+            name,
+            boot: self.boot_nonce(),
+            duration_ms,
+        };
+        self.await_motion(&motion, &mut events).await
     }
 
     async fn run_move(&self, command: Command) -> Result<MoveReport, ClientError> {
@@ -462,15 +552,15 @@ impl Client {
         self.run_move_with_id(id, command).await
     }
 
-    /// Waits for the notification that ends motion `id`; if it does not come in time
+    /// Waits for the notification that ends `motion`; if it does not come in time
     /// (for example the link dropped and the notification went to the old connection),
-    /// polls the status until every axis is idle.
+    /// asks the controller how the move ended until it has.
     async fn await_motion(
         &self,
-        id: RequestId,
-        duration_ms: u32,
+        motion: &Motion,
         events: &mut broadcast::Receiver<Event>,
     ) -> Result<MoveReport, ClientError> {
+        let (id, duration_ms) = (motion.id, motion.duration_ms);
         let expected = Duration::from_millis(u64::from(duration_ms));
         let grace = expected / 2 + Duration::from_millis(500);
         let deadline = tokio::time::Instant::now() + expected + grace;
@@ -495,30 +585,39 @@ impl Client {
                 _ => {}
             }
         }
-        self.poll_until_idle(duration_ms, expected * 2 + Duration::from_secs(5))
+        self.ask_result(motion, expected * 2 + Duration::from_secs(5))
             .await
     }
 
-    async fn poll_until_idle(
+    /// Asks `MoveResult` for `motion` until it has ended, or `limit` has passed.
+    async fn ask_result(
         &self,
-        duration_ms: u32,
+        motion: &Motion,
         limit: Duration,
     ) -> Result<MoveReport, ClientError> {
+        let unknown = |why| ClientError::OutcomeUnknown {
+            endpoint: self.endpoint.clone(),
+            request: motion.name,
+            id: motion.id.0,
+            why,
+        };
         let started = tokio::time::Instant::now();
         loop {
-            let status = self.status().await?;
-            if status.axes.iter().all(|axis| !axis.moving) {
-                let reached = status.axes.iter().all(|axis| axis.position == axis.target);
-                let outcome = match (status.emergency_stopped, reached) {
-                    (true, _) => MoveOutcome::EmergencyStopped,
-                    (false, true) => MoveOutcome::Completed,
-                    (false, false) => MoveOutcome::Stopped,
-                };
-                return Ok(MoveReport {
-                    outcome,
-                    positions: status.axes.iter().map(|axis| axis.position).collect(),
-                    duration_ms,
-                });
+            let result = self.move_result(motion.id).await?;
+            if self.boot_nonce() != motion.boot {
+                // Another start-up answers: the move was cut short by the restart.
+                return Err(unknown(Unknown::Restarted));
+            }
+            match result {
+                MoveResult::Finished { outcome, positions } => {
+                    return Ok(MoveReport {
+                        outcome,
+                        positions: positions.to_vec(),
+                        duration_ms: motion.duration_ms,
+                    });
+                }
+                MoveResult::Unknown => return Err(unknown(Unknown::Forgotten)),
+                MoveResult::InProgress => {}
             }
             if started.elapsed() > limit {
                 return Err(ClientError::MoveTimeout {
@@ -534,6 +633,16 @@ impl Client {
     pub async fn disconnect(&self) {
         *self.connection.lock().await = None;
     }
+}
+
+/// A move the controller accepted, as the client waits for its end.
+struct Motion {
+    id: RequestId,
+    /// The command's name, for messages.
+    name: &'static str,
+    /// The start-up that accepted it.
+    boot: Option<u64>,
+    duration_ms: u32,
 }
 
 fn to_axis_list(values: &[AxisValue]) -> heapless::Vec<AxisValue, MAX_AXES> {

@@ -6,5 +6,5 @@ pub mod endpoint;
 pub mod framed;
 pub mod transport;
 
-pub use client::{Client, ClientError, ClientOptions, Event, MoveReport};
+pub use client::{Client, ClientError, ClientOptions, Event, MoveReport, Unknown};
 pub use endpoint::{Endpoint, EndpointError};

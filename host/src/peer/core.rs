@@ -89,7 +89,7 @@ impl PeerCore {
                 | Capabilities::SERIAL
                 | Capabilities::SIMULATED,
         };
-        let controller = Controller::new(info, storage, clock.now_us());
+        let controller = Controller::new(info, storage, clock.now_us(), &mut OsRandom);
         let mut core = Self {
             controller,
             mounts,
