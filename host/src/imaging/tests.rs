@@ -228,3 +228,17 @@ fn changes_show_the_moved_beam_through_a_power_drift() {
     assert!((a[0] - to[0]).hypot(a[1] - to[1]) < 1.5, "{a:?}");
     assert!((v[0] - from[0]).hypot(v[1] - from[1]) < 1.5, "{v:?}");
 }
+
+#[test]
+fn a_faint_ghost_on_a_bright_beams_halo_does_not_pull_its_core_centre() {
+    let truth = [300.3, 240.6];
+    // A saturated beam with a broad halo, and a faint ghost on the halo's edge.
+    let scene = bench(9)
+        .gaussian(truth, 70.0, 1200.0)
+        .gaussian(truth, 250.0, 14.0)
+        .gaussian([470.0, 140.0], 30.0, 38.0);
+    let (beam, _) = found(&scene, truth);
+    let core = super::core_centre(&Picture::new(&scene.frame()), &beam, 0.5).unwrap();
+    let miss = (core[0] - truth[0]).hypot(core[1] - truth[1]);
+    assert!(miss < 0.5, "core centre {core:?}, beam {beam:?}");
+}
