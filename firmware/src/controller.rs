@@ -9,7 +9,7 @@ use heapless::{Deque, Vec};
 use optalign_protocol::auth::Key;
 use optalign_protocol::{
     AxisConfig, AxisStatus, BootRecord, Capabilities, Direction, Faults, MAX_AXES, MoveOutcome,
-    Notification, PeerMessage, RequestId, SessionState, Status,
+    Notification, PeerMessage, RequestId, SessionState, Status, StorageFailure, StorageHealth,
 };
 
 use crate::axis::Axis;
@@ -79,6 +79,9 @@ pub struct Controller<S: Storage> {
     now_us: u64,
     persist_due: bool,
     storage_failures: u32,
+    last_storage_failure: Option<StorageFailure>,
+    /// The latest record write failed: what it held is not stored.
+    save_failed: bool,
 }
 
 impl<S: Storage> Controller<S> {
@@ -150,6 +153,8 @@ impl<S: Storage> Controller<S> {
             now_us,
             persist_due: false,
             storage_failures: 0,
+            last_storage_failure: None,
+            save_failed: false,
         }
     }
 
@@ -181,9 +186,20 @@ impl<S: Storage> Controller<S> {
         self.axes.iter().any(|a| a.faults.0 != 0)
     }
 
-    /// Record writes that failed since start-up (motion goes on regardless).
+    /// Writes that failed since start-up, in the core or in the device (motion goes on
+    /// regardless).
     pub fn storage_failures(&self) -> u32 {
         self.storage_failures
+            .saturating_add(self.storage.device_failures())
+    }
+
+    /// Whether what was saved is durably stored, and how writes failed.
+    pub fn storage_health(&self) -> StorageHealth {
+        StorageHealth {
+            unsaved: self.save_failed || self.persist_due || self.storage.unsaved(),
+            failed_writes: self.storage_failures(),
+            last_failure: self.last_storage_failure,
+        }
     }
 
     /// Takes in the time of a call; time never goes back.
@@ -339,7 +355,9 @@ impl<S: Storage> Controller<S> {
         self.persist_due = true;
     }
 
-    /// Writes the record now, then shrinks the motion mark to the axes it cannot vouch for.
+    /// Writes the record now (and reads it back), then shrinks the motion mark to the axes
+    /// it cannot vouch for. On a board that writes flash in the background the record may
+    /// still be queued: see [`Self::commit`].
     pub(crate) fn persist(&mut self) -> Result<(), StorageError> {
         let record = Record {
             key: self.key,
@@ -347,11 +365,35 @@ impl<S: Storage> Controller<S> {
             axes: self.axes.iter().map(Axis::record).collect(),
         };
         let result = self.journal.save(&mut self.storage, &record);
+        self.save_failed = result.is_err();
         match result {
             Ok(()) => self.update_mark(Shrink::Yes),
-            Err(_) => self.storage_failures = self.storage_failures.saturating_add(1),
+            Err(error) => self.count_failure(error),
         }
         result
+    }
+
+    /// Makes the record written by [`Self::persist`] durable now, read back; only while
+    /// no axis moves (a board's flash write would starve the steps).
+    pub(crate) fn commit(&mut self) -> Result<(), StorageError> {
+        let result = self.storage.commit();
+        if let Err(error) = result {
+            self.count_failure(error);
+        }
+        result
+    }
+
+    /// Counts a failed write (a write merely postponed is no failure).
+    fn count_failure(&mut self, error: StorageError) {
+        let failure = match error {
+            StorageError::NotNow => return,
+            StorageError::ReadBack => StorageFailure::ReadBack,
+            StorageError::OutOfRange | StorageError::Device | StorageError::Encoding => {
+                StorageFailure::Write
+            }
+        };
+        self.storage_failures = self.storage_failures.saturating_add(1);
+        self.last_storage_failure = Some(failure);
     }
 
     /// Axes whose saved position cannot be trusted: those flagged `POSITION_LOST`, and
@@ -380,7 +422,7 @@ impl<S: Storage> Controller<S> {
         }
         match self.storage.write_mark(&mark::encode(wanted)) {
             Ok(()) => self.marked = wanted,
-            Err(_) => self.storage_failures = self.storage_failures.saturating_add(1),
+            Err(error) => self.count_failure(error),
         }
     }
 
@@ -460,6 +502,7 @@ impl<S: Storage> Controller<S> {
             emergency_stopped: self.emergency,
             uptime_ms: now.saturating_sub(self.boot_us) / 1000,
             boot: self.boot,
+            storage: self.storage_health(),
         }
     }
 

@@ -152,12 +152,14 @@ impl<S: Storage> Controller<S> {
             }
             Command::SetConfig { axis, config } => self.set_config(*axis, config),
             Command::SaveConfig => {
+                self.idle_for_saving(command)?;
                 for axis in self.axes.iter_mut() {
                     axis.saved = axis.config;
                 }
                 self.save("configuration")
             }
             Command::ProvisionWifi { ssid, passphrase } => {
+                self.idle_for_saving(command)?;
                 self.wifi = Some(WifiCredentials {
                     ssid: ssid.clone(),
                     passphrase: passphrase.clone(),
@@ -165,6 +167,7 @@ impl<S: Storage> Controller<S> {
                 self.save("Wi-Fi credentials")
             }
             Command::SetKey { key } => {
+                self.idle_for_saving(command)?;
                 self.key = Some(*key);
                 self.key_epoch = self.key_epoch.wrapping_add(1);
                 self.save("access key")
@@ -422,15 +425,34 @@ impl<S: Storage> Controller<S> {
         Ok(Reply::Ok)
     }
 
-    /// Writes the record now; `what` names what was changed (it stays in force even if
-    /// the write fails).
+    /// Refuses a command whose answer waits for a flash write while anything moves (a
+    /// board does not write flash then); nothing has changed when it is refused.
+    fn idle_for_saving(&self, command: &Command) -> Result<(), ErrorReply> {
+        if self.is_moving() {
+            return Err(error_reply!(
+                ErrorCode::BUSY,
+                "{} writes flash only while every axis is idle: send it after MoveFinished",
+                command.name()
+            ));
+        }
+        Ok(())
+    }
+
+    /// Writes the record and, when no axis moves, makes it durable and reads it back
+    /// before answering (while axes move, the write waits for them: `Status` shows it
+    /// unsaved). `what` names what was changed: it stays in force even if the write fails.
     fn save(&mut self, what: &str) -> Result<Reply, ErrorReply> {
-        self.persist().map(|()| Reply::Ok).map_err(|error| {
-            error_reply!(
-                ErrorCode::STORAGE,
-                "{what} applied but not saved: storage {error:?}"
-            )
-        })
+        let moving = self.is_moving();
+        self.persist()
+            .and_then(|()| if moving { Ok(()) } else { self.commit() })
+            .map(|()| Reply::Ok)
+            .map_err(|error| {
+                error_reply!(
+                    ErrorCode::STORAGE,
+                    "{what} applied but not saved: {}",
+                    error.describe()
+                )
+            })
     }
 }
 

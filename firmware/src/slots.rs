@@ -2,7 +2,8 @@
 //!
 //! Each write goes to the other slot with the next sequence number, so a power loss in the
 //! middle of a write (a torn slot) leaves the previous record intact, and loading picks the
-//! valid slot with the newest sequence. A record identical to the last one written is not
+//! valid slot with the newest sequence. Every write is read back; one that reads back
+//! differently fails, and the next write goes to the same slot. A record identical to the last one written is not
 //! written again, to spare the flash.
 
 use crate::record::{self, InvalidSlot, RECORD_LEN, Record};
@@ -74,6 +75,12 @@ impl Journal {
         }
         storage.erase(slot)?;
         storage.write(slot, &buf)?;
+        let mut check = [0u8; RECORD_LEN];
+        storage.read(slot, &mut check)?;
+        if check != buf {
+            // The slot is not the newest: the last good record stays where it was.
+            return Err(StorageError::ReadBack);
+        }
         self.newest = Some((slot, sequence));
         self.last_payload = Some(payload);
         Ok(())
@@ -121,7 +128,11 @@ mod tests {
             journal.save(&mut storage, &record(1)).unwrap();
             journal.save(&mut storage, &record(2)).unwrap();
             storage.tear_next_write(keep);
-            journal.save(&mut storage, &record(3)).unwrap();
+            assert_eq!(
+                journal.save(&mut storage, &record(3)),
+                Err(StorageError::ReadBack),
+                "a torn write does not read back"
+            );
             let mut storage = storage.power_cycled();
             let (mut journal, loaded) = Journal::load(&mut storage);
             assert_eq!(loaded, Ok(Some(record(2))), "torn after {keep} bytes");
@@ -142,6 +153,23 @@ mod tests {
         assert_eq!(Journal::load(&mut storage).1, Ok(Some(record(1))));
         storage.as_bytes_mut()[20] ^= 1;
         assert_eq!(Journal::load(&mut storage).1, Err(Corrupt));
+    }
+
+    #[test]
+    fn a_write_that_reads_back_wrong_fails_and_keeps_the_last_record() {
+        let mut storage = RamStorage::new();
+        let (mut journal, _) = Journal::load(&mut storage);
+        journal.save(&mut storage, &record(1)).unwrap();
+        storage.set_corrupting(true);
+        assert_eq!(
+            journal.save(&mut storage, &record(2)),
+            Err(StorageError::ReadBack)
+        );
+        assert_eq!(Journal::load(&mut storage).1, Ok(Some(record(1))));
+        // Not taken for written: the same record is written again once the device works.
+        storage.set_corrupting(false);
+        journal.save(&mut storage, &record(2)).unwrap();
+        assert_eq!(Journal::load(&mut storage).1, Ok(Some(record(2))));
     }
 
     #[test]

@@ -18,6 +18,24 @@ pub enum StorageError {
     Device,
     /// The record did not serialise into a slot (a bug if it ever appears).
     Encoding,
+    /// The write reported success, but reading it back gave other bytes.
+    ReadBack,
+    /// The device cannot write now (the board: the last steps are still being played
+    /// out); the write stays queued.
+    NotNow,
+}
+
+impl StorageError {
+    /// A short description, for error replies.
+    pub fn describe(self) -> &'static str {
+        match self {
+            Self::OutOfRange => "slot out of range",
+            Self::Device => "the device failed the write",
+            Self::Encoding => "the record does not encode",
+            Self::ReadBack => "reading it back gave other bytes",
+            Self::NotNow => "steps still being played out, the write is queued",
+        }
+    }
 }
 
 /// Two (or more) fixed-size slots of non-volatile memory.
@@ -36,11 +54,26 @@ pub trait Storage {
     /// the moment this returns; one naming fewer may wait until the slot writes made
     /// before it are durable, and never takes effect before them.
     fn write_mark(&mut self, mark: &[u8; MARK_LEN]) -> Result<(), StorageError>;
+    /// Makes every slot write so far durable, reading each back; called only while no axis
+    /// moves. Storage that writes through at once (the default) has nothing to do.
+    fn commit(&mut self) -> Result<(), StorageError> {
+        Ok(())
+    }
+    /// Whether slot writes are waiting to be made durable.
+    fn unsaved(&self) -> bool {
+        false
+    }
+    /// Writes that failed in the device itself, behind the core's back (a board writing
+    /// in the background counts them here).
+    fn device_failures(&self) -> u32 {
+        0
+    }
 }
 
 /// Two slots and the mark in RAM: for tests and the simulated peer, which saves
 /// [`Self::as_bytes`] to a file and restores it with [`Self::from_bytes`]. It can fail on
-/// demand and simulate a power loss in the middle of a write.
+/// demand, store writes wrongly while reporting success, and simulate a power loss in the
+/// middle of a write.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct RamStorage {
     /// Slot 0, slot 1, then the mark.
@@ -49,6 +82,7 @@ pub struct RamStorage {
     /// Power failed in a torn write: nothing is stored any more.
     dead: bool,
     failing: bool,
+    corrupting: bool,
     writes: u32,
 }
 
@@ -66,6 +100,7 @@ impl RamStorage {
             tear_after: None,
             dead: false,
             failing: false,
+            corrupting: false,
             writes: 0,
         }
     }
@@ -104,6 +139,12 @@ impl RamStorage {
     /// Makes every erase and write fail (or succeed again).
     pub fn set_failing(&mut self, failing: bool) {
         self.failing = failing;
+    }
+
+    /// Makes every slot write report success but store its first byte inverted (or
+    /// store faithfully again), as a worn flash cell would.
+    pub fn set_corrupting(&mut self, corrupting: bool) {
+        self.corrupting = corrupting;
     }
 
     /// Completed (or torn) writes so far.
@@ -149,12 +190,16 @@ impl Storage for RamStorage {
             return Ok(());
         }
         let torn = self.tear_after.take();
+        let corrupting = self.corrupting;
         let keep = torn.unwrap_or(data.len()).min(data.len());
         let dst = self
             .slot(slot)?
             .get_mut(..data.len())
             .ok_or(StorageError::OutOfRange)?;
         dst[..keep].copy_from_slice(&data[..keep]);
+        if corrupting && let Some(first) = dst.first_mut() {
+            *first = !*first;
+        }
         self.writes += 1;
         self.dead = torn.is_some();
         Ok(())

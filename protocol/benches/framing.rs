@@ -34,6 +34,7 @@ fn status_message() -> PeerMessage {
             emergency_stopped: false,
             uptime_ms: 123_456_789,
             boot: BootRecord::Restored,
+            storage: StorageHealth::default(),
         }),
     }
 }

@@ -5,7 +5,7 @@
 /// Bump it whenever the encoding of any message changes. `Command::Hello` and the error
 /// reply are frozen, and a peer answers a `Hello` of another version with that error (never
 /// with an `Identity`), so a mismatch can always be reported.
-pub const PROTOCOL_VERSION: u16 = 2;
+pub const PROTOCOL_VERSION: u16 = 3;
 
 /// Most axes one controller exposes (a Pico W drives four; the simulated peer up to eight).
 pub const MAX_AXES: usize = 8;

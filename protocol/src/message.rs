@@ -233,6 +233,29 @@ pub struct Status {
     pub uptime_ms: u64,
     /// What the controller found in storage when it started.
     pub boot: BootRecord,
+    /// Whether everything saved is durably in storage, and how writes failed.
+    pub storage: StorageHealth,
+}
+
+/// The state of a controller's persistent writes.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct StorageHealth {
+    /// Changes not yet durably stored: a write waiting for motion to stop, or one that
+    /// failed (the next save, or the record written when motion stops, tries again).
+    pub unsaved: bool,
+    /// Writes that failed (the write itself, or its read-back) since start-up.
+    pub failed_writes: u32,
+    /// How the latest failed write failed.
+    pub last_failure: Option<StorageFailure>,
+}
+
+/// How a write to persistent storage failed.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub enum StorageFailure {
+    /// The device reported an error while erasing or programming.
+    Write,
+    /// The write reported success, but reading it back gave other bytes.
+    ReadBack,
 }
 
 /// What a controller found in storage at start-up.

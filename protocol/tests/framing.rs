@@ -184,13 +184,22 @@ fn reply() -> impl Strategy<Value = Reply> {
                 Just(BootRecord::Restored),
                 Just(BootRecord::Unreadable),
                 Just(BootRecord::InterruptedMove),
-            ]
+            ],
+            (
+                any::<(bool, u32)>(),
+                prop_oneof![
+                    Just(None),
+                    Just(Some(StorageFailure::Write)),
+                    Just(Some(StorageFailure::ReadBack)),
+                ]
+            )
         )
             .prop_map(
                 |(
                     axes,
                     (trusted_link, authenticated, key_provisioned, emergency_stopped, uptime_ms),
                     boot,
+                    ((unsaved, failed_writes), last_failure),
                 )| {
                     Reply::Status(Status {
                         axes: axes.into_iter().collect(),
@@ -202,6 +211,11 @@ fn reply() -> impl Strategy<Value = Reply> {
                         emergency_stopped,
                         uptime_ms,
                         boot,
+                        storage: StorageHealth {
+                            unsaved,
+                            failed_writes,
+                            last_failure,
+                        },
                     })
                 }
             ),

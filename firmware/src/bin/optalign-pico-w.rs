@@ -91,7 +91,7 @@ async fn main(spawner: Spawner) {
     if board_flash.blocking_unique_id(&mut id).is_err() {
         warn!("flash: no unique id");
     }
-    let storage = FlashStorage::load(&mut board_flash);
+    let storage = FlashStorage::load(board_flash);
     let info = BoardInfo {
         board: "pico-w",
         firmware_version: env!("CARGO_PKG_VERSION"),
@@ -157,7 +157,7 @@ async fn main(spawner: Spawner) {
     motion_spawner.spawn(unwrap!(axis3(Feeder::new(sm3, &program, pins3, q3))));
     motion_spawner.spawn(unwrap!(motion::run(core)));
 
-    spawner.spawn(unwrap!(flash::writer(core, board_flash)));
+    spawner.spawn(unwrap!(flash::writer(core)));
     spawner.spawn(unwrap!(watchdog::run(dog)));
 
     static SERIAL: StaticCell<heapless::String<16>> = StaticCell::new();

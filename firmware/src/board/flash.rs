@@ -6,10 +6,13 @@
 //! off and the flash unreadable, long enough to starve the step back-ends; so
 //! [`FlashStorage`] keeps both slots in RAM, and [`writer`] copies a changed slot to flash
 //! once every axis is idle (no move running or waiting, every queued pin change made).
+//! An explicit save (`SaveConfig`, `SetKey`, ...) does not wait for it: the core, with
+//! every axis idle, calls [`Storage::commit`], which writes to flash at once and answers
+//! only after the read-back (or fails when pin changes are still being played out).
 //! A slot is written whole (erase, program, read back), in the order the core wrote them,
 //! so the journal's guarantee holds on flash: a power cut during a write leaves the other
-//! slot's record intact. A write that fails is retried and counted ([`FAILED_WRITES`]);
-//! the status LED shows the fault.
+//! slot's record intact. A write that fails is retried and counted ([`FAILED_WRITES`],
+//! reported in `Status`); the status LED shows the fault.
 //!
 //! The motion mark lives in the watchdog's scratch registers ([`super::scratch`]). A mark
 //! naming more axes is stored at once; one naming fewer (the record now holds their end
@@ -51,8 +54,9 @@ pub static FAILED_WRITES: AtomicU32 = AtomicU32::new(0);
 /// Raised when a slot changed in RAM.
 static CHANGED: Signal<CriticalSectionRawMutex, ()> = Signal::new();
 
-/// Both slots in RAM, mirrored to flash by [`writer`].
+/// Both slots in RAM, mirrored to flash by [`writer`] or [`Storage::commit`].
 pub struct FlashStorage {
+    flash: BoardFlash,
     slots: [[u8; RECORD_LEN]; SLOTS as usize],
     dirty: [bool; SLOTS as usize],
     /// A mark naming fewer axes, stored once the dirty slots are in flash.
@@ -61,7 +65,7 @@ pub struct FlashStorage {
 
 impl FlashStorage {
     /// Both slots as they are in flash (erased if unreadable).
-    pub fn load(flash: &mut BoardFlash) -> Self {
+    pub fn load(mut flash: BoardFlash) -> Self {
         let mut slots = [[0xFF; RECORD_LEN]; SLOTS as usize];
         for (slot, bytes) in (0u8..).zip(slots.iter_mut()) {
             if flash.blocking_read(offset(slot), bytes).is_err() {
@@ -70,6 +74,7 @@ impl FlashStorage {
             }
         }
         Self {
+            flash,
             slots,
             dirty: [false; SLOTS as usize],
             held_mark: None,
@@ -89,8 +94,21 @@ impl FlashStorage {
         }
     }
 
-    /// Writes every changed slot to flash.
-    fn flush(&mut self, flash: &mut BoardFlash) -> Result<(), embassy_rp::flash::Error> {
+    /// Writes every changed slot to flash, reading each back; a failure is counted.
+    fn flush(&mut self) -> Result<(), StorageError> {
+        let result = self.write_dirty();
+        if let Err(error) = result {
+            FAILED_WRITES.fetch_add(1, Ordering::Relaxed);
+            warn!("flash: record write failed: {}", error);
+        }
+        result.map_err(|error| match error {
+            embassy_rp::flash::Error::Other => StorageError::ReadBack,
+            _ => StorageError::Device,
+        })
+    }
+
+    fn write_dirty(&mut self) -> Result<(), embassy_rp::flash::Error> {
+        let flash = &mut self.flash;
         for slot in 0..SLOTS {
             let index = usize::from(slot);
             if !self.dirty.get(index).copied().unwrap_or(false) {
@@ -151,6 +169,21 @@ impl Storage for FlashStorage {
         Ok(scratch::read())
     }
 
+    fn commit(&mut self) -> Result<(), StorageError> {
+        if now_us() <= LAST_EVENT_US.load(Ordering::Acquire) + 100 {
+            return Err(StorageError::NotNow);
+        }
+        self.flush()
+    }
+
+    fn unsaved(&self) -> bool {
+        self.dirty.iter().any(|&dirty| dirty)
+    }
+
+    fn device_failures(&self) -> u32 {
+        FAILED_WRITES.load(Ordering::Relaxed)
+    }
+
     fn write_mark(&mut self, new: &[u8; MARK_LEN]) -> Result<(), StorageError> {
         if self.dirty.iter().any(|&dirty| dirty) {
             let held = mark::decode(&scratch::read()) | mark::decode(new);
@@ -172,12 +205,12 @@ fn offset(slot: u8) -> u32 {
 enum Attempt {
     Written,
     Moving,
-    Failed(embassy_rp::flash::Error),
+    Failed,
 }
 
 /// Copies changed slots to flash whenever the axes are idle.
 #[embassy_executor::task]
-pub async fn writer(core: &'static SharedCore, mut flash: BoardFlash) -> ! {
+pub async fn writer(core: &'static SharedCore) -> ! {
     loop {
         CHANGED.wait().await;
         loop {
@@ -189,9 +222,12 @@ pub async fn writer(core: &'static SharedCore, mut flash: BoardFlash) -> ! {
                 if core.is_moving() || !played_out {
                     return Attempt::Moving;
                 }
-                match core.storage_mut().flush(&mut flash) {
+                if !core.storage().unsaved() {
+                    return Attempt::Written;
+                }
+                match core.storage_mut().flush() {
                     Ok(()) => Attempt::Written,
-                    Err(error) => Attempt::Failed(error),
+                    Err(_) => Attempt::Failed,
                 }
             });
             match attempt {
@@ -200,11 +236,7 @@ pub async fn writer(core: &'static SharedCore, mut flash: BoardFlash) -> ! {
                     break;
                 }
                 Attempt::Moving => Timer::after_millis(20).await,
-                Attempt::Failed(error) => {
-                    FAILED_WRITES.fetch_add(1, Ordering::Relaxed);
-                    warn!("flash: record write failed: {}", error);
-                    Timer::after_secs(1).await;
-                }
+                Attempt::Failed => Timer::after_secs(1).await,
             }
         }
     }

@@ -159,6 +159,9 @@ fn a_retransmission_is_answered_while_the_old_connection_holds_control() {
 fn a_new_key_frees_a_stale_claim() {
     let (mut rig, mut first, _) = two_clients();
     assert!(started(&rig.send_on(&mut first, RequestId(10), a_move())));
+    // Keys are written only while the axes are idle: stop them over serial first.
+    rig.ok(Command::Stop);
+    rig.settle();
     rig.ok(Command::SetKey { key: [9; 32] });
     let mut other = network(&mut rig);
     assert_eq!(authenticate(&mut rig, &mut other, &[9; 32]), Reply::Ok);

@@ -156,7 +156,8 @@ fn network_control_needs_a_key_then_authentication() {
         rig.send_on(&mut net, RequestId(18), a_move()),
         Reply::MoveStarted { .. }
     ));
-    // A new key revokes the session.
+    // A new key (written while the axes are idle) revokes the session.
+    rig.settle();
     rig.ok(Command::SetKey { key: [9; 32] });
     assert_eq!(
         code(&rig.send_on(&mut net, RequestId(19), Command::Stop)),

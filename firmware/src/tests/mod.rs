@@ -7,3 +7,4 @@ mod motion;
 mod persistence;
 mod rig;
 mod robustness;
+mod saving;

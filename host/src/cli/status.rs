@@ -1,7 +1,10 @@
 //! `optalign status`: identity and per-axis state, as a table or JSON.
 
 use clap::Args;
-use optalign_protocol::{AxisStatus, BootRecord, Direction, Faults, Identity, Slack, Status};
+use optalign_protocol::{
+    AxisStatus, BootRecord, Direction, Faults, Identity, Slack, Status, StorageFailure,
+    StorageHealth,
+};
 use serde_json::json;
 
 use super::connect::ControllerArgs;
@@ -66,6 +69,7 @@ fn render_table(endpoint: &str, identity: &Identity, status: &Status) -> String 
             "record: the controller was reset during a move: positions of the moving axes lost\n"
         }
     };
+    out += &describe_storage(&status.storage);
     let lost: Vec<String> = (0..)
         .zip(&status.axes)
         .filter(|(_, axis)| axis.faults.has(Faults::POSITION_LOST))
@@ -110,6 +114,28 @@ fn axis_row(index: usize, axis: &AxisStatus) -> String {
     )
 }
 
+/// The storage line: whether everything saved is stored, and how writes failed.
+fn describe_storage(health: &StorageHealth) -> String {
+    let state = if health.unsaved {
+        "UNSAVED changes: a write waits for the axes to stop, or failed (saving again retries)"
+    } else {
+        "everything saved is stored"
+    };
+    let failures = match (health.failed_writes, health.last_failure) {
+        (0, _) => String::new(),
+        (count, last) => format!(
+            ", {count} failed write{} since start-up (last: {})",
+            if count == 1 { "" } else { "s" },
+            match last {
+                Some(StorageFailure::Write) => "the device failed the write",
+                Some(StorageFailure::ReadBack) => "read back different bytes",
+                None => "in the background",
+            }
+        ),
+    };
+    format!("storage: {state}{failures}\n")
+}
+
 fn yes_no(value: bool) -> &'static str {
     if value { "yes" } else { "no" }
 }
@@ -129,5 +155,28 @@ pub fn describe_faults(faults: Faults) -> String {
         "none".into()
     } else {
         names.join(",")
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_storage_line_says_what_is_unsaved_and_how_writes_failed() {
+        assert_eq!(
+            describe_storage(&StorageHealth::default()),
+            "storage: everything saved is stored\n"
+        );
+        let line = describe_storage(&StorageHealth {
+            unsaved: true,
+            failed_writes: 2,
+            last_failure: Some(StorageFailure::ReadBack),
+        });
+        assert!(line.contains("UNSAVED"), "{line}");
+        assert!(
+            line.contains("2 failed writes since start-up (last: read back different bytes)"),
+            "{line}"
+        );
     }
 }

@@ -5,7 +5,9 @@
 //! with timeouts, retransmits a request with the *same* id when no answer comes (the
 //! controller's reply cache makes that safe), reconnects transparently when the link
 //! drops, and turns the controller's unsolicited notifications into a stream. Moves return
-//! once the motion has finished, like a status future in Bluesky/Ophyd.
+//! once the motion has finished, like a status future in Bluesky/Ophyd. Every write has a
+//! timeout too: a controller that stops reading (a zero TCP window, a stuck serial port)
+//! gives [`ClientError::SendTimeout`], never a hang.
 //!
 //! The reply cache lives in the controller's RAM, so a retransmission is only safe to the
 //! start-up that saw the first transmission: a command with an effect is never sent again
@@ -42,6 +44,8 @@ pub struct ClientOptions {
     pub attempts: u32,
     /// How long to wait for a TCP connection to open.
     pub connect_timeout: Duration,
+    /// How long one write may wait for the controller to take the bytes.
+    pub send_timeout: Duration,
 }
 
 impl Default for ClientOptions {
@@ -51,6 +55,7 @@ impl Default for ClientOptions {
             request_timeout: Duration::from_millis(1500),
             attempts: 4,
             connect_timeout: Duration::from_secs(3),
+            send_timeout: Duration::from_secs(2),
         }
     }
 }
@@ -73,6 +78,13 @@ pub enum ClientError {
     },
     #[error("controller refused the request: {0}")]
     Rejected(ErrorReply),
+    #[error(
+        "sending to controller at {endpoint} timed out after {waited:?}: it takes no more bytes (a zero TCP window or a stuck serial port)"
+    )]
+    SendTimeout {
+        endpoint: Endpoint,
+        waited: Duration,
+    },
     #[error("no answer from controller at {endpoint} after {attempts} attempts")]
     Timeout { endpoint: Endpoint, attempts: u32 },
     #[error("controller at {endpoint} sent an unexpected reply to {request}: {reply:?}")]
@@ -265,9 +277,7 @@ impl Client {
             }
         }
         Err(match last_error {
-            Some(ClientError::Connect { endpoint, source }) => {
-                ClientError::Connect { endpoint, source }
-            }
+            Some(error @ (ClientError::Connect { .. } | ClientError::SendTimeout { .. })) => error,
             _ => ClientError::Timeout {
                 endpoint: self.endpoint.clone(),
                 attempts: self.options.attempts.max(1),
@@ -339,14 +349,30 @@ impl Client {
         let Some(open) = connection.as_mut() else {
             unreachable!("open() either connects or returns an error")
         };
-        if let Err(source) = write_frame(&mut open.writer, request).await {
+        if let Err(error) = self.bounded(write_frame(&mut open.writer, request)).await {
+            // A frame cut short would garble the next one: start over on a new link.
             *connection = None;
-            return Err(ClientError::Io {
-                endpoint: self.endpoint.clone(),
-                source,
-            });
+            return Err(error);
         }
         Ok(())
+    }
+
+    /// Runs one write within the send timeout.
+    async fn bounded(
+        &self,
+        write: impl Future<Output = std::io::Result<()>>,
+    ) -> Result<(), ClientError> {
+        match tokio::time::timeout(self.options.send_timeout, write).await {
+            Ok(Ok(())) => Ok(()),
+            Ok(Err(source)) => Err(ClientError::Io {
+                endpoint: self.endpoint.clone(),
+                source,
+            }),
+            Err(_) => Err(ClientError::SendTimeout {
+                endpoint: self.endpoint.clone(),
+                waited: self.options.send_timeout,
+            }),
+        }
     }
 
     /// Opens the transport, starts the reader, and runs handshake and authentication.
@@ -359,13 +385,7 @@ impl Client {
             })?;
         let (read, mut writer) = tokio::io::split(transport);
         // A lone delimiter flushes any half frame a previous client left at the peer.
-        writer
-            .write_all(&[0])
-            .await
-            .map_err(|source| ClientError::Io {
-                endpoint: self.endpoint.clone(),
-                source,
-            })?;
+        self.bounded(writer.write_all(&[0])).await?;
         let reader = tokio::spawn(read_loop(
             FrameReader::new(read),
             self.pending.clone(),
@@ -400,9 +420,8 @@ impl Client {
             endpoint: self.endpoint.clone(),
             source,
         };
-        write_frame(&mut connection.writer, &request)
-            .await
-            .map_err(io_error)?;
+        self.bounded(write_frame(&mut connection.writer, &request))
+            .await?;
         let reply = tokio::time::timeout(self.options.request_timeout, receiver).await;
         self.pending
             .lock()
