@@ -77,6 +77,7 @@ impl Target {
             key: setup.key.clone(),
             state_file: setup.state_file,
             time: setup.time,
+            ..PeerOptions::default()
         };
         let peer = SimPeer::start(&options)?;
         let address = peer.listen_tcp("127.0.0.1:0".parse()?).await?;

@@ -28,6 +28,7 @@ async fn peer(axes: u8, backlash: u32) -> (Arc<SimPeer>, String) {
         key: Some(KEY.into()),
         state_file: None,
         time: TimeMode::Instant,
+        ..PeerOptions::default()
     };
     let peer = SimPeer::start(&options).unwrap();
     let address = peer

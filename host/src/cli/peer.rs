@@ -33,6 +33,10 @@ pub struct PeerArgs {
     /// Simulated time runs this many times faster than real time; 0 completes moves instantly.
     #[arg(long, default_value_t = 1.0)]
     time_scale: f64,
+    /// Network clients served at once; the last free slot is kept for a client that
+    /// authenticates (to take control).
+    #[arg(long, default_value_t = 4)]
+    max_clients: usize,
 }
 
 pub async fn run(args: PeerArgs) -> anyhow::Result<()> {
@@ -60,6 +64,7 @@ pub async fn run(args: PeerArgs) -> anyhow::Result<()> {
         } else {
             TimeMode::Scaled(args.time_scale)
         },
+        max_clients: args.max_clients,
     };
     let peer = SimPeer::start(&options)?;
     let bound = peer.listen_tcp(args.listen).await?;

@@ -23,6 +23,9 @@ pub struct PeerOptions {
     /// Where the controller's persisted record and the true mount state survive restarts.
     pub state_file: Option<PathBuf>,
     pub time: TimeMode,
+    /// Network clients served at once (at least 2); the last free slot is kept for a
+    /// client that authenticates, so observers cannot lock out a new controlling client.
+    pub max_clients: usize,
 }
 
 impl Default for PeerOptions {
@@ -33,6 +36,7 @@ impl Default for PeerOptions {
             key: None,
             state_file: None,
             time: TimeMode::Scaled(1.0),
+            max_clients: 4,
         }
     }
 }
@@ -62,6 +66,11 @@ impl PeerCore {
             "--axes must be 1..={}, got {}",
             optalign_protocol::MAX_AXES,
             options.axes
+        );
+        anyhow::ensure!(
+            options.max_clients >= 2,
+            "--max-clients must be at least 2 (one slot is kept for a controlling client), got {}",
+            options.max_clients
         );
         let state_file = options.state_file.clone().map(StateFile::new);
         let saved = match &state_file {

@@ -1,13 +1,20 @@
 //! Serving a [`PeerCore`] over TCP and a pseudo-terminal, with the motion loop that keeps
 //! stepping the mounts on the simulated clock.
+//!
+//! Bounded like a board: at most `max_clients` network connections (one more is answered
+//! `busy` and closed, and the last free slot is kept for a client that authenticates), and
+//! a bounded reply queue per connection, so a client that does not read its replies stops
+//! being read instead of growing the peer's memory.
 
 use std::net::SocketAddr;
+use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard};
+use std::time::Duration;
 
 use optalign_firmware::{LinkKind, Session};
-use optalign_protocol::{PeerMessage, Request};
+use optalign_protocol::{Command, ErrorCode, ErrorReply, PeerMessage, Reply, Request};
 use tokio::io::{AsyncRead, AsyncWrite};
-use tokio::net::TcpListener;
+use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::{Notify, broadcast, mpsc};
 use tokio::task::JoinHandle;
 
@@ -15,9 +22,18 @@ use super::clock::TimeMode;
 use super::core::{PeerCore, PeerOptions};
 use crate::link::framed::{FrameReader, write_frame};
 
+/// Replies waiting to be written to one connection.
+const REPLY_QUEUE: usize = 32;
+
+/// How long a refused connection gets to send its first request (to be answered by id).
+const REFUSAL_WAIT: Duration = Duration::from_secs(2);
+
 /// A running simulated controller.
 pub struct SimPeer {
     core: Arc<Mutex<PeerCore>>,
+    max_clients: usize,
+    /// Network connections open now.
+    clients: Arc<AtomicUsize>,
     wake: Arc<Notify>,
     notifications: broadcast::Sender<PeerMessage>,
     tasks: Mutex<Vec<JoinHandle<()>>>,
@@ -32,6 +48,8 @@ impl SimPeer {
         let (notifications, _) = broadcast::channel(256);
         let peer = Arc::new(Self {
             core: Arc::new(Mutex::new(core)),
+            max_clients: options.max_clients,
+            clients: Arc::default(),
             wake: Arc::new(Notify::new()),
             notifications,
             tasks: Mutex::new(Vec::new()),
@@ -55,6 +73,25 @@ impl SimPeer {
         lock(&self.core)
     }
 
+    /// Network connections open now.
+    pub fn network_clients(&self) -> usize {
+        self.clients.load(Ordering::SeqCst)
+    }
+
+    /// Takes a network slot, if one is free; the last one comes reserved.
+    fn take_slot(&self) -> Option<Slot> {
+        let max = self.max_clients;
+        self.clients
+            .fetch_update(Ordering::SeqCst, Ordering::SeqCst, |open| {
+                (open < max).then_some(open + 1)
+            })
+            .ok()
+            .map(|open| Slot {
+                clients: self.clients.clone(),
+                reserved: open + 1 == max,
+            })
+    }
+
     /// True shaft positions of the mounts: hidden truth.
     pub fn shaft_positions(&self) -> Vec<i32> {
         self.core().shaft_positions()
@@ -73,10 +110,17 @@ impl SimPeer {
                 match listener.accept().await {
                     Ok((stream, remote)) => {
                         let _ = stream.set_nodelay(true);
-                        tracing::info!(%remote, "client connected");
+                        let Some(slot) = peer.take_slot() else {
+                            tracing::warn!(%remote, "client refused: every slot is taken");
+                            tokio::spawn(refuse(stream, peer.max_clients));
+                            continue;
+                        };
+                        tracing::info!(%remote, reserved = slot.reserved, "client connected");
                         let peer = peer.clone();
                         tokio::spawn(async move {
-                            peer.serve(stream, LinkKind::Network).await;
+                            peer.serve_on(stream, LinkKind::Network, slot.reserved)
+                                .await;
+                            drop(slot);
                             tracing::info!(%remote, "client disconnected");
                         });
                     }
@@ -108,8 +152,17 @@ impl SimPeer {
     where
         S: AsyncRead + AsyncWrite + Send + 'static,
     {
+        self.serve_on(stream, link, false).await;
+    }
+
+    /// Serves one byte stream; on a `reserved` slot, nothing but the handshake,
+    /// authentication and emergency stops is served until the session authenticates.
+    async fn serve_on<S>(self: &Arc<Self>, stream: S, link: LinkKind, mut reserved: bool)
+    where
+        S: AsyncRead + AsyncWrite + Send + 'static,
+    {
         let (read, mut write) = tokio::io::split(stream);
-        let (replies, mut outgoing) = mpsc::unbounded_channel::<PeerMessage>();
+        let (replies, mut outgoing) = mpsc::channel::<PeerMessage>(REPLY_QUEUE);
         let mut notifications = self.notifications.subscribe();
         let writer = tokio::spawn(async move {
             loop {
@@ -131,14 +184,38 @@ impl SimPeer {
         });
         let mut reader = FrameReader::<_, Request>::new(read);
         let mut session = Session::new(link);
-        while let Ok(Some(frame)) = reader.next().await {
+        'stream: while let Ok(Some(frame)) = reader.next().await {
             let answers = match frame {
-                Ok(request) => self.core().handle(&mut session, &request),
+                Ok(request) if reserved && !opens_reserved_slot(&request.command) => {
+                    let refusal = refusal(request.id, reserved_slot());
+                    let _ = replies.send(refusal).await;
+                    break;
+                }
+                Ok(request) => {
+                    let answers = self.core().handle(&mut session, &request);
+                    if matches!(request.command, Command::AuthResponse { .. })
+                        && answers.iter().any(|answer| {
+                            matches!(
+                                answer,
+                                PeerMessage::Reply {
+                                    reply: Reply::Ok,
+                                    ..
+                                }
+                            )
+                        })
+                    {
+                        reserved = false;
+                    }
+                    answers
+                }
                 Err(error) => self.core().link_error(error),
             };
             self.wake.notify_one();
             for answer in answers {
-                let _ = replies.send(answer);
+                // Waits while the client is not reading: it is not read either then.
+                if replies.send(answer).await.is_err() {
+                    break 'stream;
+                }
             }
         }
         self.core().end_session(&mut session);
@@ -158,6 +235,65 @@ impl Drop for SimPeer {
     fn drop(&mut self) {
         self.shutdown();
     }
+}
+
+/// One network connection's place among `max_clients`; freed when dropped.
+struct Slot {
+    clients: Arc<AtomicUsize>,
+    /// The last free slot: kept for a client that authenticates.
+    reserved: bool,
+}
+
+impl Drop for Slot {
+    fn drop(&mut self) {
+        self.clients.fetch_sub(1, Ordering::SeqCst);
+    }
+}
+
+/// What a session on the reserved slot may send before it authenticates.
+fn opens_reserved_slot(command: &Command) -> bool {
+    matches!(
+        command,
+        Command::Hello { .. }
+            | Command::AuthChallenge
+            | Command::AuthResponse { .. }
+            | Command::EmergencyStop
+    )
+}
+
+fn reserved_slot() -> ErrorReply {
+    ErrorReply::new(
+        ErrorCode::BUSY,
+        format_args!("the last free client slot is kept for a client that authenticates"),
+    )
+}
+
+fn full(max_clients: usize) -> ErrorReply {
+    ErrorReply::new(
+        ErrorCode::BUSY,
+        format_args!(
+            "all {max_clients} network client slots are taken: close one, or use the serial link"
+        ),
+    )
+}
+
+fn refusal(id: optalign_protocol::RequestId, error: ErrorReply) -> PeerMessage {
+    PeerMessage::Reply {
+        id,
+        reply: Reply::Error(error),
+    }
+}
+
+/// Answers the first request of a connection there is no slot for with `busy`, then
+/// closes it.
+async fn refuse(stream: TcpStream, max_clients: usize) {
+    let (read, mut write) = stream.into_split();
+    let mut reader = FrameReader::<_, Request>::new(read);
+    let message = match tokio::time::timeout(REFUSAL_WAIT, reader.next()).await {
+        Ok(Ok(Some(Ok(request)))) => refusal(request.id, full(max_clients)),
+        _ => PeerMessage::LinkError(full(max_clients)),
+    };
+    let _ = tokio::time::timeout(REFUSAL_WAIT, write_frame(&mut write, &message)).await;
 }
 
 fn lock<T>(mutex: &Mutex<T>) -> MutexGuard<'_, T> {

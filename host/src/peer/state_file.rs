@@ -18,7 +18,8 @@ pub struct SavedState {
     pub mounts: Vec<MountModel>,
 }
 
-/// A state file on disk; written atomically (temporary file, then rename).
+/// A state file on disk; written atomically (temporary file, then rename), readable and
+/// writable by its owner only (it holds the access key).
 pub struct StateFile {
     path: PathBuf,
     last_written: Option<Vec<u8>>,
@@ -68,9 +69,52 @@ impl StateFile {
                 .collect(),
         };
         let temporary = self.path.with_extension("tmp");
-        std::fs::write(&temporary, serde_json::to_vec(&state)?)?;
+        write_private(&temporary, &serde_json::to_vec(&state)?)?;
         std::fs::rename(&temporary, &self.path)?;
         self.last_written = Some(flash.to_vec());
         Ok(())
+    }
+}
+
+/// Writes `bytes` to a new file at `path` that only its owner may read (0600 on Unix); a
+/// file left there before is replaced, so its permissions never carry over.
+fn write_private(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
+    use std::io::Write;
+    match std::fs::remove_file(path) {
+        Err(error) if error.kind() != std::io::ErrorKind::NotFound => return Err(error),
+        _ => {}
+    }
+    let mut options = std::fs::OpenOptions::new();
+    options.write(true).create_new(true);
+    #[cfg(unix)]
+    std::os::unix::fs::OpenOptionsExt::mode(&mut options, 0o600);
+    let mut file = options.open(path)?;
+    file.write_all(bytes)?;
+    file.sync_all()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[cfg(unix)]
+    #[test]
+    fn the_state_file_is_readable_by_its_owner_only() {
+        use std::os::unix::fs::PermissionsExt;
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("peer.json");
+        // A file left world-readable before (and a stale temporary) must not stay so.
+        std::fs::write(&path, b"{}").unwrap();
+        std::fs::set_permissions(&path, std::fs::Permissions::from_mode(0o644)).unwrap();
+        std::fs::write(path.with_extension("tmp"), b"stale").unwrap();
+        let mut storage = RamStorage::new();
+        storage.as_bytes_mut()[0] = 1;
+        let mut file = StateFile::new(path.clone());
+        file.save_if_changed(&storage, &SimDriver::new([MountModel::new(0)]), 1)
+            .unwrap();
+        let mode = std::fs::metadata(&path).unwrap().permissions().mode() & 0o777;
+        assert_eq!(mode, 0o600, "state file mode {mode:o}");
+        let loaded = file.load().unwrap().unwrap();
+        assert_eq!(loaded.flash, storage.as_bytes());
     }
 }

@@ -63,6 +63,7 @@ impl SimMotors {
             key: Some(RIG_KEY.into()),
             state_file: None,
             time: TimeMode::Instant,
+            ..PeerOptions::default()
         };
         let mut motors = match path {
             MotorPath::InProcess => {

@@ -111,4 +111,33 @@ mod tests {
         assert_eq!(camera.capture().await.unwrap(), second);
         assert!(FolderCamera::new(dir.path().join("missing"), Duration::from_secs(1)).is_err());
     }
+
+    #[tokio::test]
+    async fn captures_the_jpeg_and_tiff_files_it_watches_for() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut camera =
+            FolderCamera::new(dir.path().to_owned(), Duration::from_millis(400)).unwrap();
+        let bright = image::GrayImage::from_pixel(4, 3, image::Luma([200]));
+        for (index, (name, format)) in [
+            ("0001.tiff", image::ImageFormat::Tiff),
+            ("0002.JPG", image::ImageFormat::Jpeg),
+            ("0003.tif", image::ImageFormat::Tiff),
+            ("0004.jpeg", image::ImageFormat::Jpeg),
+        ]
+        .into_iter()
+        .enumerate()
+        {
+            tokio::time::sleep(Duration::from_millis(20)).await;
+            bright
+                .save_with_format(dir.path().join(name), format)
+                .unwrap();
+            let frame = camera.capture().await.unwrap();
+            assert_eq!((frame.width(), frame.height()), (4, 3), "{name}");
+            assert!(
+                frame.pixels().iter().all(|&p| p.abs_diff(200) <= 2),
+                "{name} (capture {index}): {:?}",
+                frame.pixels()
+            );
+        }
+    }
 }

@@ -28,7 +28,52 @@ pub fn decode_image(path: &Path) -> anyhow::Result<Frame> {
 
 #[cfg(test)]
 mod tests {
+    use image::{ImageFormat, RgbImage};
+
     use super::*;
+
+    /// A 16 x 8 colour ramp, and its luminance as `into_luma8` computes it.
+    fn ramp() -> (RgbImage, Vec<u8>) {
+        let colour = RgbImage::from_fn(16, 8, |x, y| {
+            image::Rgb([(x * 16) as u8, (y * 32) as u8, 128])
+        });
+        let luma = image::DynamicImage::ImageRgb8(colour.clone())
+            .into_luma8()
+            .into_raw();
+        (colour, luma)
+    }
+
+    /// `image` written by the `image` crate as `format` to a file named `name`.
+    fn write(dir: &Path, name: &str, image: &RgbImage, format: ImageFormat) -> std::path::PathBuf {
+        let path = dir.join(name);
+        image.save_with_format(&path, format).unwrap();
+        path
+    }
+
+    #[test]
+    fn reads_jpeg_and_tiff_as_cameras_write_them() {
+        let dir = tempfile::tempdir().unwrap();
+        let (colour, luma) = ramp();
+
+        // TIFF is lossless: exactly the luminance.
+        let tiff = write(dir.path(), "a.tif", &colour, ImageFormat::Tiff);
+        let frame = decode_image(&tiff).unwrap();
+        assert_eq!((frame.width(), frame.height()), (16, 8));
+        assert_eq!(frame.pixels(), luma.as_slice());
+
+        // JPEG is lossy: the luminance within a few levels.
+        let jpeg = write(dir.path(), "a.jpg", &colour, ImageFormat::Jpeg);
+        let frame = decode_image(&jpeg).unwrap();
+        assert_eq!((frame.width(), frame.height()), (16, 8));
+        let worst = frame
+            .pixels()
+            .iter()
+            .zip(&luma)
+            .map(|(&got, &want)| got.abs_diff(want))
+            .max()
+            .unwrap();
+        assert!(worst <= 12, "JPEG luminance off by {worst}");
+    }
 
     #[test]
     fn reads_png_and_refuses_empty_or_garbage_files() {
