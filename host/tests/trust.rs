@@ -230,6 +230,29 @@ impl Relay {
     fn endpoint(&self) -> Endpoint {
         format!("tcp://{}", self.address).parse().unwrap()
     }
+
+    /// Restarts the controller behind the relay, as a reset does: `first` shuts down, a new
+    /// peer starts from the same state file, the relay points at it, lets answers through
+    /// again and cuts every connection.
+    async fn restart(&self, first: &SimPeer, time: TimeMode, state: &Path) -> Arc<SimPeer> {
+        first.shutdown();
+        let (second, address) = peer(time, Some(state)).await;
+        *self.upstream.lock().unwrap() = address;
+        self.hold.store(false, Ordering::SeqCst);
+        self.cut.send_modify(|n| *n += 1);
+        second
+    }
+}
+
+/// Polls `condition` every 5 ms, up to `tries` times; whether it came true.
+async fn eventually(tries: usize, mut condition: impl FnMut() -> bool) -> bool {
+    for _ in 0..tries {
+        if condition() {
+            return true;
+        }
+        tokio::time::sleep(Duration::from_millis(5)).await;
+    }
+    condition()
 }
 
 /// Copies bytes both ways, dropping the peer's while `hold` is set, until either side
@@ -272,15 +295,7 @@ async fn a_move_whose_controller_restarted_before_answering_runs_once_and_is_unk
     let state = dir.path().join("peer.json");
     let (first, address) = peer(TimeMode::Instant, Some(&state)).await;
     let relay = Relay::start(address).await;
-    let client = Client::connect(
-        relay.endpoint(),
-        ClientOptions {
-            request_timeout: Duration::from_millis(500),
-            ..client_options()
-        },
-    )
-    .await
-    .unwrap();
+    let client = relayed_client(&relay, Some(Duration::from_millis(500))).await;
     let booted = client.boot_nonce();
     // The move runs, but its answer is lost on the way back...
     relay.hold.store(true, Ordering::SeqCst);
@@ -294,20 +309,13 @@ async fn a_move_whose_controller_restarted_before_answering_runs_once_and_is_unk
     };
     let moving = client.run_move_with_id(client.next_request_id(), command);
     let restart = async {
-        for _ in 0..200 {
-            if first.shaft_positions()[0] == 500 && !first.core().is_moving() {
-                break;
-            }
-            tokio::time::sleep(Duration::from_millis(5)).await;
-        }
+        eventually(200, || {
+            first.shaft_positions()[0] == 500 && !first.core().is_moving()
+        })
+        .await;
         assert_eq!(first.shaft_positions(), [500, 0], "the move ran");
         // ...and the controller restarts before the client sends it again.
-        first.shutdown();
-        let (second, address) = peer(TimeMode::Instant, Some(&state)).await;
-        *relay.upstream.lock().unwrap() = address;
-        relay.hold.store(false, Ordering::SeqCst);
-        relay.cut.send_modify(|n| *n += 1);
-        second
+        relay.restart(&first, TimeMode::Instant, &state).await
     };
     let (outcome, second) = tokio::join!(moving, restart);
     let error = outcome.unwrap_err();
@@ -354,27 +362,29 @@ fn long_move() -> Command {
 
 /// Waits until `peer` has made steps of the move in progress.
 async fn under_way(peer: &SimPeer) {
-    for _ in 0..500 {
-        if peer.core().is_moving() && peer.shaft_positions()[0] > 0 {
-            return;
-        }
-        tokio::time::sleep(Duration::from_millis(5)).await;
-    }
-    panic!("the move never got under way");
+    assert!(
+        eventually(500, || peer.core().is_moving()
+            && peer.shaft_positions()[0] > 0)
+        .await,
+        "the move never got under way"
+    );
 }
 
-/// A client with the test key through `relay`.
-async fn relayed_client(relay: &Relay) -> Client {
-    Client::connect(relay.endpoint(), client_options())
-        .await
-        .unwrap()
+/// A client with the test key through `relay`, with its own request timeout if given.
+async fn relayed_client(relay: &Relay, request_timeout: Option<Duration>) -> Client {
+    let defaults = client_options();
+    let options = ClientOptions {
+        request_timeout: request_timeout.unwrap_or(defaults.request_timeout),
+        ..defaults
+    };
+    Client::connect(relay.endpoint(), options).await.unwrap()
 }
 
 #[tokio::test]
 async fn a_stop_whose_notification_was_lost_is_reported_as_stopped() {
     let (peer, address) = peer(TimeMode::Scaled(2.0), None).await;
     let relay = Relay::start(address).await;
-    let client = relayed_client(&relay).await;
+    let client = relayed_client(&relay, None).await;
     let moving = client.run_move_with_id(client.next_request_id(), long_move());
     let interfere = async {
         under_way(&peer).await;
@@ -423,15 +433,11 @@ async fn a_move_cut_short_by_a_restart_is_reported_unknown() {
     let state = dir.path().join("peer.json");
     let (first, address) = peer(TimeMode::Scaled(1.0), Some(&state)).await;
     let relay = Relay::start(address).await;
-    let client = relayed_client(&relay).await;
+    let client = relayed_client(&relay, None).await;
     let moving = client.run_move_with_id(client.next_request_id(), long_move());
     let restart = async {
         under_way(&first).await;
-        first.shutdown();
-        let (second, address) = peer(TimeMode::Scaled(1.0), Some(&state)).await;
-        *relay.upstream.lock().unwrap() = address;
-        relay.cut.send_modify(|n| *n += 1);
-        second
+        relay.restart(&first, TimeMode::Scaled(1.0), &state).await
     };
     let (outcome, _second) = tokio::join!(moving, restart);
     let error = outcome.unwrap_err();
@@ -456,31 +462,16 @@ async fn an_emergency_stop_is_sent_again_to_a_restarted_controller() {
     let state = dir.path().join("peer.json");
     let (first, address) = peer(TimeMode::Instant, Some(&state)).await;
     let relay = Relay::start(address).await;
-    let client = Client::connect(
-        relay.endpoint(),
-        ClientOptions {
-            request_timeout: Duration::from_millis(500),
-            ..client_options()
-        },
-    )
-    .await
-    .unwrap();
+    let client = relayed_client(&relay, Some(Duration::from_millis(500))).await;
     relay.hold.store(true, Ordering::SeqCst);
     let stopping = client.command_ok(Command::EmergencyStop);
     let restart = async {
-        for _ in 0..200 {
-            if latched(&first) {
-                break;
-            }
-            tokio::time::sleep(Duration::from_millis(5)).await;
-        }
-        assert!(latched(&first), "the first start-up stopped");
-        first.shutdown();
-        let (second, address) = peer(TimeMode::Instant, Some(&state)).await;
+        assert!(
+            eventually(200, || latched(&first)).await,
+            "the first start-up stopped"
+        );
+        let second = relay.restart(&first, TimeMode::Instant, &state).await;
         assert!(!latched(&second), "a restart forgets the latch");
-        *relay.upstream.lock().unwrap() = address;
-        relay.hold.store(false, Ordering::SeqCst);
-        relay.cut.send_modify(|n| *n += 1);
         second
     };
     let (stopped, _second) = tokio::join!(stopping, restart);
