@@ -157,34 +157,30 @@ pub fn motion(
                 && blob.signal < RESIDUE_SHARE * stayed.signal
         })
     };
-    let appeared: Vec<Beam> = moved
-        .appeared
-        .iter()
-        .filter(|b| !residue(b, &after.beams, |p| p.1))
-        .copied()
-        .collect();
-    let vanished: Vec<Beam> = moved
-        .vanished
-        .iter()
-        .filter(|b| !residue(b, &before.beams, |p| p.0))
-        .copied()
-        .collect();
-    let keep = |blobs: &[Beam], avoid: Option<Vec2>| -> Vec<Beam> {
+    // The changes that may be the moved beam on one side of the move: not residue of the
+    // features that stayed there, and not the one nearest `avoid`'s place on that side.
+    let candidates = |blobs: &[Beam],
+                      beams: &[Beam],
+                      side: fn(&(usize, usize)) -> usize,
+                      avoid: Option<Vec2>|
+     -> Vec<Beam> {
+        let real: Vec<Beam> = blobs
+            .iter()
+            .filter(|b| !residue(b, beams, side))
+            .copied()
+            .collect();
         let nearest_avoided = avoid.and_then(|p| {
-            blobs
-                .iter()
+            real.iter()
                 .min_by(|a, b| distance(a.centre, p).total_cmp(&distance(b.centre, p)))
                 .filter(|b| distance(b.centre, p) < 2.0 * b.size())
                 .map(|b| b.centre)
         });
-        blobs
-            .iter()
+        real.into_iter()
             .filter(|b| Some(b.centre) != nearest_avoided)
-            .copied()
             .collect()
     };
-    let appeared = keep(&appeared, avoid.map(|a| a.1));
-    let vanished = keep(&vanished, avoid.map(|a| a.0));
+    let appeared = candidates(&moved.appeared, &after.beams, |p| p.1, avoid.map(|a| a.1));
+    let vanished = candidates(&moved.vanished, &before.beams, |p| p.0, avoid.map(|a| a.0));
     let to = pick(&appeared, expected);
     let from = match to {
         Some(t) => vanished
