@@ -1,6 +1,7 @@
 //! The command line: one subcommand per job, each in its own module.
 
 mod axes;
+mod beams;
 mod bench;
 mod calibrate;
 mod config;
@@ -53,6 +54,8 @@ enum Commands {
     Calibrate(calibrate::CalibrateArgs),
     /// Write one camera frame of a simulated scene.
     Render(render::RenderArgs),
+    /// Find the beams in an image file: centres, how sure, sizes, and what is wrong with each.
+    Beams(beams::BeamsArgs),
     /// Run one alignment task with one policy.
     Run(run::RunArgs),
     /// Run the task x policy x seed matrix on simulated rigs; write results, summary, charts.
@@ -80,6 +83,7 @@ impl Cli {
             Commands::Flash(args) => flash::run(args),
             Commands::Calibrate(args) => calibrate::run(args).await,
             Commands::Render(args) => render::run(args),
+            Commands::Beams(args) => beams::run(args),
             Commands::Run(args) => run::run(args).await,
             Commands::Bench(args) => bench::run(args).await,
             Commands::Demo(args) => demo::run(args).await,

@@ -66,7 +66,7 @@ const FIT_FLOOR_NOISES: f64 = 3.0;
 const MAX_FIT_RADIUS_SHARE: f64 = 3.0;
 
 /// A beam found in a picture.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
 pub struct Beam {
     /// Intensity centroid (first moment), px (x right, y down). Pulled inwards when the
     /// border cuts the beam.

@@ -7,7 +7,7 @@
 use nalgebra::{Matrix4, Vector4};
 
 /// A round Gaussian fitted to a region.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
 pub struct GaussianFit {
     /// Centre, px (x right, y down); may lie outside the image for a clipped spot.
     pub centre: [f64; 2],

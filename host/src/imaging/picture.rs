@@ -33,6 +33,11 @@ const HOT_RATIO: f32 = 2.5;
 
 /// The floor of the noise estimate, gray levels (quantisation alone gives 0.29).
 const MIN_NOISE: f64 = 0.3;
+/// Above this share of background pixels at 0, the noise is read from the spread above black
+/// instead of from neighbour differences (which clipping shrinks).
+const CLIPPED_DARK_SHARE: f64 = 0.02;
+/// How far above the share of clipped pixels a quantile used for the noise must lie.
+const CLIP_MARGIN: f64 = 0.05;
 
 /// A frame's light above its background.
 #[derive(Clone, Debug)]
@@ -70,8 +75,11 @@ impl Picture {
         repair_hot_pixels(&mut light, width, height, noise);
         let top = raw.iter().copied().max().unwrap_or(0);
         let plateau = bytecount(raw, top);
-        // The brightest level is saturation when several pixels sit on it (or it is 255).
-        let saturation = (top == u8::MAX || plateau >= 8).then_some(top);
+        // The brightest level is saturation when it is 255, or when light piles up on it:
+        // several pixels, more than on the level just below (the flat top of an unsaturated
+        // beam holds fewer pixels than the ring around it).
+        let piled_up = plateau >= 8 && plateau > bytecount(raw, top.saturating_sub(1));
+        let saturation = (top == u8::MAX || piled_up).then_some(top);
         let saturated = raw
             .iter()
             .map(|&p| Some(p) == saturation && p > 0)
@@ -168,7 +176,14 @@ impl Plane {
                     continue;
                 }
                 let centre = [(x0 + x1) as f64 / 2.0, (y0 + y1) as f64 / 2.0];
-                cells.push((centre, histogram.robust_mean(), [x0, y0, x1, y1]));
+                cells.push(Cell {
+                    centre,
+                    level: histogram.robust_mean(),
+                    bounds: [x0, y0, x1, y1],
+                    black: histogram.counts[0],
+                    total: histogram.total,
+                    noise_above_black: histogram.noise_above_clip(),
+                });
             }
         }
         let mut keep = vec![true; cells.len()];
@@ -177,7 +192,7 @@ impl Plane {
             plane = least_squares_plane(&cells, &keep).unwrap_or(plane);
             let residuals: Vec<f64> = cells
                 .iter()
-                .map(|(c, m, _)| m - (plane[0] + plane[1] * c[0] + plane[2] * c[1]))
+                .map(|c| c.level - (plane[0] + plane[1] * c.centre[0] + plane[2] * c.centre[1]))
                 .collect();
             let kept: Vec<f64> = residuals
                 .iter()
@@ -194,7 +209,12 @@ impl Plane {
             keep = next;
         }
         let mut differences = Histogram::default();
-        for ((_, _, [x0, y0, x1, y1]), _) in cells.iter().zip(&keep).filter(|(_, k)| **k) {
+        let kept_cells = || cells.iter().zip(&keep).filter(|(_, k)| **k).map(|(c, _)| c);
+        for Cell {
+            bounds: [x0, y0, x1, y1],
+            ..
+        } in kept_cells()
+        {
             for y in (*y0..*y1).step_by(3) {
                 let row = &raw[y * width..(y + 1) * width];
                 for x in (*x0..(*x1).min(width - 1)).step_by(2) {
@@ -202,7 +222,15 @@ impl Plane {
                 }
             }
         }
-        let noise = differences.noise_from_differences().max(MIN_NOISE);
+        let (black, total) = kept_cells().fold((0, 0), |(b, t), c| (b + c.black, t + c.total));
+        let clipped = f64::from(black) > CLIPPED_DARK_SHARE * f64::from(total);
+        let noise = if clipped {
+            median(kept_cells().filter_map(|c| c.noise_above_black).collect())
+        } else {
+            None
+        }
+        .unwrap_or_else(|| differences.noise_from_differences())
+        .max(MIN_NOISE);
         Self {
             a: plane[0],
             b: plane[1],
@@ -211,6 +239,27 @@ impl Plane {
         }
     }
 }
+
+/// One cell of the background grid: its robust level, its pixel bounds `[x0, y0, x1, y1)`,
+/// how many of its samples read 0 out of how many, and the noise measured above black.
+struct Cell {
+    centre: [f64; 2],
+    level: f64,
+    bounds: [usize; 4],
+    black: u32,
+    total: u32,
+    noise_above_black: Option<f64>,
+}
+
+/// Standard-normal points and their cumulative probabilities, half a σ apart: the noise is
+/// read off two quantiles one σ apart that both lie above the pixels clipped at black.
+const NORMAL_POINTS: [(f64, f64); 5] = [
+    (0.0, 0.5),
+    (0.5, 0.6915),
+    (1.0, 0.8413),
+    (1.5, 0.9332),
+    (2.0, 0.9772),
+];
 
 /// How many bytes equal `value`.
 fn bytecount(bytes: &[u8], value: u8) -> usize {
@@ -251,7 +300,8 @@ impl Histogram {
         u8::MAX
     }
 
-    /// The mean without single outliers far above the median (hot pixels).
+    /// The mean without single outliers far above the median (hot pixels): the expected
+    /// level of a pixel, clipping at black included.
     fn robust_mean(&self) -> f64 {
         let median = f64::from(self.quantile(0.5));
         // The median absolute deviation, from the distribution of |v - median|.
@@ -268,7 +318,12 @@ impl Histogram {
                 seen >= half
             })
             .unwrap_or(0) as f64;
-        let limit = median + 8.0 * (1.4826 * mad).max(1.0);
+        // Half the pixels of a dark level near black read 0, which shrinks the MAD far
+        // below the noise: the spread above black keeps the cut out of the noise's tail.
+        let spread = (1.4826 * mad)
+            .max(self.noise_above_clip().unwrap_or(0.0))
+            .max(1.0);
+        let limit = median + 8.0 * spread;
         let (sum, n) = self
             .counts
             .iter()
@@ -278,6 +333,20 @@ impl Histogram {
                 (s + value as f64 * f64::from(count), n + f64::from(count))
             });
         if n == 0.0 { median } else { sum / n }
+    }
+
+    /// The read noise from the spread of the values above black, when many background
+    /// pixels clip at 0 (a dark level within a few σ of black), where differences of
+    /// clipped neighbours understate it. `None` when too little lies above the clip.
+    fn noise_above_clip(&self) -> Option<f64> {
+        let black = f64::from(self.counts[0]) / f64::from(self.total.max(1));
+        let lower = NORMAL_POINTS
+            .iter()
+            .position(|&(_, p)| p > black + CLIP_MARGIN)?;
+        let (z_low, p_low) = NORMAL_POINTS[lower];
+        let (z_high, p_high) = *NORMAL_POINTS.get(lower + 2)?;
+        let spread = f64::from(self.quantile(p_high)) - f64::from(self.quantile(p_low));
+        Some(spread / (z_high - z_low))
     }
 
     /// The read noise from absolute differences of neighbouring background pixels: their
@@ -313,13 +382,13 @@ fn median(mut values: Vec<f64>) -> Option<f64> {
 }
 
 /// Least squares of `m = a + b x + c y` over the kept cells.
-fn least_squares_plane(cells: &[([f64; 2], f64, [usize; 4])], keep: &[bool]) -> Option<[f64; 3]> {
+fn least_squares_plane(cells: &[Cell], keep: &[bool]) -> Option<[f64; 3]> {
     let mut normal = nalgebra::Matrix3::<f64>::zeros();
     let mut rhs = nalgebra::Vector3::<f64>::zeros();
-    for ((c, m, _), _) in cells.iter().zip(keep).filter(|(_, k)| **k) {
-        let row = nalgebra::Vector3::new(1.0, c[0], c[1]);
+    for (cell, _) in cells.iter().zip(keep).filter(|(_, k)| **k) {
+        let row = nalgebra::Vector3::new(1.0, cell.centre[0], cell.centre[1]);
         normal += row * row.transpose();
-        rhs += row * *m;
+        rhs += row * cell.level;
     }
     let solution = normal.try_inverse()? * rhs;
     Some([solution[0], solution[1], solution[2]])

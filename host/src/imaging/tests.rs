@@ -128,6 +128,21 @@ fn a_saturated_core_keeps_its_centre() {
 }
 
 #[test]
+fn saturation_is_the_level_light_piles_up_on_not_a_flat_unsaturated_top() {
+    let truth = [290.5, 210.3];
+    // A camera that clips at 200, not 255.
+    let bright = bench(10).gaussian(truth, 40.0, 900.0).frame();
+    let clipped: Vec<u8> = bright.pixels().iter().map(|&p| p.min(200)).collect();
+    let frame = optalign_optics::Frame::new(W as u32, H as u32, clipped).unwrap();
+    let beam = find_beams(&Picture::new(&frame))[0];
+    assert!(beam.saturated, "{beam:?}");
+    // No noise: the top of an unsaturated beam is a flat plateau of one gray level.
+    let smooth = Scene::new(W, H).gaussian(truth, 40.0, 150.0);
+    let beam = found(&smooth, truth).0;
+    assert!(!beam.saturated, "{beam:?}");
+}
+
+#[test]
 fn a_beam_cut_by_the_border_is_flagged_and_its_fit_finds_the_centre() {
     let truth = [14.0, 230.0];
     let (beam, _) = found(&bench(11).gaussian(truth, 50.0, 150.0), truth);
@@ -241,4 +256,31 @@ fn a_faint_ghost_on_a_bright_beams_halo_does_not_pull_its_core_centre() {
     let core = super::core_centre(&Picture::new(&scene.frame()), &beam, 0.5).unwrap();
     let miss = (core[0] - truth[0]).hypot(core[1] - truth[1]);
     assert!(miss < 0.5, "core centre {core:?}, beam {beam:?}");
+}
+
+#[test]
+fn heavy_noise_on_a_dark_level_near_black_is_measured_and_the_beam_still_found() {
+    // Half the background pixels read 0 at the darkest level: the noise, the background
+    // and so the beam's window would all come out wrong if the clipping were ignored.
+    let truth = [300.6, 250.2];
+    for (std, level) in [(10.0, 6.0), (30.0, 6.0), (60.0, 6.0), (60.0, 20.0)] {
+        let scene = Scene::new(W, H)
+            .background(level, [0.0, 0.0])
+            .gaussian(truth, 40.0, 150.0)
+            .noise(std, 3);
+        let picture = Picture::new(&scene.frame());
+        assert!(
+            (picture.noise() - std).abs() < 0.05 * std,
+            "noise {std} on level {level} measured as {}",
+            picture.noise()
+        );
+        let (beam, d) = found(&scene, truth);
+        assert!(beam.localised, "noise {std}, level {level}: {beam:?}");
+        assert!(
+            d < 3.0 * beam.uncertainty && d < 3.0,
+            "noise {std}, level {level}: {d} px off, uncertainty {}",
+            beam.uncertainty
+        );
+        assert!((beam.size() - 40.0).abs() < 12.0, "{beam:?}");
+    }
 }
