@@ -8,7 +8,7 @@ use std::sync::Arc;
 
 use indicatif::ProgressBar;
 use optalign::bench::report::{THUMBNAIL_WIDTH, write_report};
-use optalign::bench::{BenchPlan, MatrixOptions, SweepSpec, matrix, run_bench, run_matrix};
+use optalign::bench::{BenchPlan, Knob, MatrixOptions, SweepSpec, matrix, run_bench, run_matrix};
 use optalign::rig::MotorPath;
 use optalign::scenario::ScenarioFile;
 use optalign::task::TaskKind;
@@ -120,11 +120,16 @@ fn a_sweep_writes_one_group_per_value_and_its_chart() {
     assert!(summary.contains("## cavity: success rate"), "{summary}");
     assert!(!summary.contains("## michelson"), "{summary}");
     assert_chart(&out.path().join("charts"), "sweep_artefact_brightness");
-    assert!(
-        out.path()
-            .join("runs/artefact_brightness=3/cavity-random-seed0/transcript.jsonl")
-            .is_file()
-    );
+    let run = out
+        .path()
+        .join("runs/artefact_brightness=3/cavity-random-seed0");
+    assert!(run.join("transcript.jsonl").is_file());
+    // The run folder records the swept scenario, so the run can be repeated alone.
+    let recorded = ScenarioFile::load(&run.join("scenario.toml")).unwrap();
+    let swept = Knob::ArtefactBrightness
+        .apply(&tiny_scenario(), 3.0)
+        .unwrap();
+    assert_eq!(recorded, swept);
 }
 
 #[test]

@@ -156,6 +156,10 @@ pub async fn run_one(spec: &RunSpec, options: &MatrixOptions) -> anyhow::Result<
     };
     let mut built = build_policy(&spec.policy, &brief, &policy_options)?;
     let mut rig = SimRig::new(spec.task, scenario, spec.seed, options.motors).await?;
+    if let Some(dir) = &spec.out_dir {
+        // The run can be repeated alone: `optalign run --scenario DIR/scenario.toml`.
+        crate::cli::record_scenario(dir, scenario)?;
+    }
     let run_options = RunOptions {
         out_dir: spec.out_dir.clone(),
         save_frames: options.save_frames,

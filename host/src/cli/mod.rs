@@ -17,6 +17,8 @@ mod replay;
 mod run;
 mod status;
 
+pub use run::record_scenario;
+
 use clap::{Parser, Subcommand};
 
 /// Aligns free-space optics from camera images: motor controllers, simulations, policies.
