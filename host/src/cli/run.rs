@@ -6,7 +6,9 @@ use std::path::{Path, PathBuf};
 use anyhow::Context;
 use clap::Args;
 
+use super::monitor::MonitorArgs;
 use crate::lab::{LabRig, RigFile};
+use crate::monitor::Hub;
 use crate::policy::vlm::{self, ReasoningEffort, VlmOptions};
 use crate::policy::{PolicyOptions, TaskBrief, build_policy};
 use crate::rig::{MotorPath, Rig, SimRig};
@@ -43,6 +45,8 @@ pub struct RunArgs {
     /// How motor commands reach the simulated firmware.
     #[arg(long, value_enum, default_value = "in-process")]
     motors: MotorPath,
+    #[command(flatten)]
+    monitor: MonitorArgs,
     #[command(flatten)]
     vlm: VlmArgs,
 }
@@ -156,9 +160,19 @@ pub async fn run(args: RunArgs) -> anyhow::Result<()> {
         Some(bench) => Box::new(LabRig::connect(bench).await?),
         None => Box::new(SimRig::new(args.task, &scenario, args.seed, args.motors).await?),
     };
+    let run_monitor = args.monitor.run_monitor(&out.display().to_string());
+    let server = match &run_monitor {
+        Some(run_monitor) => {
+            args.monitor
+                .serve(&Hub::single(run_monitor.clone()))
+                .await?
+        }
+        None => None,
+    };
     let options = RunOptions {
         out_dir: Some(out.clone()),
         seed: args.seed,
+        monitor: run_monitor,
         ..RunOptions::default()
     };
     eprintln!("run folder: {}", out.display());
@@ -170,6 +184,9 @@ pub async fn run(args: RunArgs) -> anyhow::Result<()> {
         &options,
     )
     .await?;
+    if let Some(server) = server {
+        server.close().await;
+    }
     println!(
         "{} seed {}: {} after {} evaluations, terminal error {}{}",
         summary.task,
