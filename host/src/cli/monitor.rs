@@ -23,18 +23,19 @@ pub struct MonitorArgs {
     /// Require the monitor's token even on a loopback address.
     #[arg(long, requires = "monitor")]
     monitor_token: bool,
-    /// Hold the run before its first action until it is resumed (or stepped) from the page.
-    #[arg(long, requires = "monitor")]
-    paused: bool,
 }
 
 impl MonitorArgs {
-    /// The run's monitor when `--monitor` was given, held before its first action with
-    /// `--paused`.
-    pub fn run_monitor(&self, label: &str) -> Option<RunMonitor> {
+    pub fn is_on(&self) -> bool {
+        self.monitor.is_some()
+    }
+
+    /// The run's monitor when `--monitor` was given, held before its first action when
+    /// `paused`.
+    pub fn run_monitor(&self, label: &str, paused: bool) -> Option<RunMonitor> {
         self.monitor?;
         let monitor = RunMonitor::new(label);
-        if self.paused {
+        if paused {
             monitor
                 .set_paused(true)
                 .expect("a run that has not started can be paused");

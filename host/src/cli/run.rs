@@ -47,6 +47,10 @@ pub struct RunArgs {
     motors: MotorPath,
     #[command(flatten)]
     monitor: MonitorArgs,
+    /// Hold the run before its first action until it is resumed (or stepped) from the
+    /// monitor's page.
+    #[arg(long, requires = "monitor")]
+    paused: bool,
     #[command(flatten)]
     vlm: VlmArgs,
 }
@@ -160,7 +164,9 @@ pub async fn run(args: RunArgs) -> anyhow::Result<()> {
         Some(bench) => Box::new(LabRig::connect(bench).await?),
         None => Box::new(SimRig::new(args.task, &scenario, args.seed, args.motors).await?),
     };
-    let run_monitor = args.monitor.run_monitor(&out.display().to_string());
+    let run_monitor = args
+        .monitor
+        .run_monitor(&out.display().to_string(), args.paused);
     let server = match &run_monitor {
         Some(run_monitor) => {
             args.monitor

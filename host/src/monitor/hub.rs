@@ -39,6 +39,14 @@ pub struct MatrixView {
     pub runs: Vec<RunEntry>,
 }
 
+impl std::fmt::Debug for Hub {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Hub")
+            .field("runs", &self.lock().runs.len())
+            .finish_non_exhaustive()
+    }
+}
+
 impl Hub {
     /// A hub showing one run.
     pub fn single(run: RunMonitor) -> Self {
@@ -47,11 +55,16 @@ impl Hub {
         hub
     }
 
-    /// A hub for a matrix of `planned` runs, added as they start.
-    pub fn matrix(planned: usize) -> Self {
+    /// A hub for a matrix whose runs are added as they start.
+    pub fn matrix() -> Self {
         let hub = Self::default();
-        hub.lock().planned = Some(planned);
+        hub.lock().planned = Some(0);
         hub
+    }
+
+    /// How many runs the matrix will make in all.
+    pub fn set_planned(&self, planned: usize) {
+        self.lock().planned = Some(planned);
     }
 
     fn lock(&self) -> std::sync::MutexGuard<'_, HubState> {
@@ -111,7 +124,8 @@ mod tests {
 
     #[test]
     fn the_matrix_counts_its_runs_as_they_start_and_finish() {
-        let hub = Hub::matrix(3);
+        let hub = Hub::matrix();
+        hub.set_planned(3);
         assert!(hub.is_matrix());
         let first = hub.add_run("michelson vision seed 0");
         first.begin("michelson", "vision", 0, 40, None);

@@ -57,7 +57,7 @@ pub struct MonitorServer {
 impl MonitorServer {
     /// Stops serving after open pages have had the time to receive the final state.
     pub async fn close(self) {
-        tokio::time::sleep(UPDATE_INTERVAL * 3).await;
+        tokio::time::sleep(UPDATE_INTERVAL * 10).await;
     }
 }
 
