@@ -64,6 +64,98 @@ async fn a_monitor_with_a_token_refuses_every_request_without_it() {
     assert!(run.control().stop.is_some());
 }
 
+#[tokio::test]
+async fn a_recorded_run_is_served_with_its_saved_frames_and_refuses_commands() {
+    let fixture = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("src/monitor/testdata/recorded-michelson");
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::copy(
+        fixture.join("transcript.jsonl"),
+        dir.path().join("transcript.jsonl"),
+    )
+    .unwrap();
+    std::fs::create_dir(dir.path().join("frames")).unwrap();
+    let pixels = (0..64 * 48).map(|i| (i % 251) as u8).collect();
+    let frame = optalign_optics::Frame::new(64, 48, pixels).unwrap();
+    let png = frame.encode_png().unwrap();
+    std::fs::write(dir.path().join("frames/0003.png"), &png).unwrap();
+
+    let recorded = optalign::monitor::load_recorded(dir.path()).unwrap();
+    let access = Access::for_address("127.0.0.1:0".parse().unwrap(), false);
+    let server = start(
+        "127.0.0.1:0".parse().unwrap(),
+        Hub::single(recorded),
+        access,
+    )
+    .await
+    .unwrap();
+    let base = format!("http://{}", server.address);
+    let client = reqwest::Client::new();
+    let frame = client
+        .get(format!("{base}/run/0/frame/3"))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(frame.status(), 200);
+    assert_eq!(frame.bytes().await.unwrap().as_ref(), png.as_slice());
+    let beams: serde_json::Value = client
+        .get(format!("{base}/run/0/beams/3"))
+        .send()
+        .await
+        .unwrap()
+        .json()
+        .await
+        .unwrap();
+    assert_eq!(
+        (beams["width"].clone(), beams["height"].clone()),
+        (64.into(), 48.into())
+    );
+    let missing = client
+        .get(format!("{base}/run/0/frame/4"))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(missing.status(), 404);
+    assert!(
+        missing
+            .text()
+            .await
+            .unwrap()
+            .contains("frame 4 is neither the newest nor saved")
+    );
+    for command in ["stop", "step", "pause?paused=true"] {
+        let refused = client
+            .post(format!("{base}/run/0/{command}"))
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(refused.status(), 409, "{command}");
+        assert!(refused.text().await.unwrap().contains("recorded run"));
+    }
+    let mut events = client
+        .get(format!("{base}/run/0/events"))
+        .send()
+        .await
+        .unwrap();
+    let mut text = String::new();
+    while !text.contains("\n\n") {
+        let chunk = tokio::time::timeout(Duration::from_secs(10), events.chunk())
+            .await
+            .unwrap()
+            .unwrap()
+            .expect("the first update");
+        text.push_str(&String::from_utf8_lossy(&chunk));
+    }
+    let data = text
+        .lines()
+        .find_map(|l| l.strip_prefix("data: "))
+        .expect("an update event");
+    let update: serde_json::Value = serde_json::from_str(data).unwrap();
+    assert_eq!(update["status"]["state"], "replay");
+    assert_eq!(update["all_frames"], true);
+    assert_eq!(update["steps"].as_array().unwrap().len(), 12);
+}
+
 /// Kills the child when the test ends, however it ends.
 struct Running(Child);
 

@@ -1,6 +1,7 @@
 //! `optalign run`: one alignment run of one task with one policy, on a simulated rig
 //! (`--sim`) or a bench described by a rig file (`--rig`).
 
+use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 
 use anyhow::Context;
@@ -191,6 +192,14 @@ pub async fn run(args: RunArgs) -> anyhow::Result<()> {
     )
     .await?;
     if let Some(server) = server {
+        if std::io::stdin().is_terminal() {
+            eprintln!(
+                "the run is over; its page stays up at {} until you press Enter",
+                server.url
+            );
+            tokio::task::spawn_blocking(|| std::io::stdin().read_line(&mut String::new()))
+                .await??;
+        }
         server.close().await;
     }
     println!(
