@@ -9,6 +9,7 @@ pub mod imaging;
 pub mod lab;
 pub mod link;
 pub mod logging;
+pub mod monitor;
 pub mod peer;
 pub mod policy;
 pub mod rig;

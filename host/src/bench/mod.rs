@@ -16,6 +16,7 @@ use std::time::Instant;
 use anyhow::Context;
 use indicatif::ProgressBar;
 
+use crate::monitor::Hub;
 use crate::policy::vlm::VlmOptions;
 use crate::policy::{PolicyOptions, TaskBrief, build_policy};
 use crate::rig::{MotorPath, SimRig};
@@ -58,6 +59,8 @@ pub struct MatrixOptions {
     pub save_frames: bool,
     /// Settings of the `vlm` policy, when the matrix has it.
     pub vlm: Option<VlmOptions>,
+    /// The live monitor showing the matrix, when one is served.
+    pub monitor: Option<Hub>,
 }
 
 impl Default for MatrixOptions {
@@ -67,6 +70,7 @@ impl Default for MatrixOptions {
             motors: MotorPath::InProcess,
             save_frames: false,
             vlm: None,
+            monitor: None,
         }
     }
 }
@@ -160,10 +164,18 @@ pub async fn run_one(spec: &RunSpec, options: &MatrixOptions) -> anyhow::Result<
         // The run can be repeated alone: `optalign run --scenario DIR/scenario.toml`.
         crate::cli::record_scenario(dir, scenario)?;
     }
+    let monitor = options.monitor.as_ref().map(|hub| {
+        let setting = spec.setting.map(|s| format!(" at {s}")).unwrap_or_default();
+        hub.add_run(&format!(
+            "{} {} seed {}{setting}",
+            spec.task, spec.policy, spec.seed
+        ))
+    });
     let run_options = RunOptions {
         out_dir: spec.out_dir.clone(),
         save_frames: options.save_frames,
         seed: spec.seed,
+        monitor,
         ..RunOptions::default()
     };
     let summary = run_episode(
@@ -233,6 +245,9 @@ pub fn run_bench(plan: &BenchPlan, progress: &ProgressBar) -> anyhow::Result<Ben
     std::fs::create_dir_all(&plan.out)
         .with_context(|| format!("cannot create {}", plan.out.display()))?;
     progress.set_length(specs.len() as u64);
+    if let Some(hub) = &plan.options.monitor {
+        hub.set_planned(specs.len());
+    }
     let records = run_matrix(&specs, &plan.options, progress)?;
     progress.finish_and_clear();
     let wall_time_s = started.elapsed().as_secs_f64();

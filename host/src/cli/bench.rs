@@ -9,8 +9,10 @@ use std::sync::Arc;
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 
+use super::monitor::MonitorArgs;
 use super::run::VlmArgs;
 use crate::bench::{BenchPlan, MatrixOptions, SweepSpec, default_jobs, parse_seeds, run_bench};
+use crate::monitor::Hub;
 use crate::policy::policy_names;
 use crate::policy::vlm::{self, CostEstimate, VlmOptions};
 use crate::rig::MotorPath;
@@ -57,6 +59,8 @@ pub struct BenchArgs {
     /// Start even when the estimated model cost of the vlm runs is large.
     #[arg(long)]
     yes: bool,
+    #[command(flatten)]
+    monitor: MonitorArgs,
     #[command(flatten)]
     vlm: VlmArgs,
 }
@@ -149,6 +153,11 @@ pub async fn run(args: BenchArgs) -> anyhow::Result<()> {
         &scenario,
     )
     .await?;
+    let hub = args.monitor.is_on().then(Hub::matrix);
+    let _server = match &hub {
+        Some(hub) => args.monitor.serve(hub).await?,
+        None => None,
+    };
     let plan = BenchPlan {
         tasks,
         policies,
@@ -164,6 +173,7 @@ pub async fn run(args: BenchArgs) -> anyhow::Result<()> {
             motors: args.motors,
             save_frames: args.frames,
             vlm: vlm.clone(),
+            monitor: hub,
         },
         sweeps,
     };

@@ -51,6 +51,7 @@ pub async fn run(args: DemoArgs) -> anyhow::Result<()> {
         motors: args.motors,
         save_frames: true,
         vlm: None,
+        monitor: None,
     };
     eprintln!(
         "demo: {} on the three tasks, seed {}, motors over {}",

@@ -8,6 +8,7 @@ mod config;
 mod connect;
 mod demo;
 mod flash;
+mod monitor;
 mod motion;
 mod peer;
 mod position;
@@ -64,6 +65,9 @@ enum Commands {
     Bench(bench::BenchArgs),
     /// Align all three simulated tasks through the simulated firmware; write an HTML report.
     Demo(demo::DemoArgs),
+    /// Serve the page of a finished run (transcript and frames) with a slider over its
+    /// evaluations.
+    Monitor(monitor::MonitorCommandArgs),
     /// Re-run a recorded vlm run's replies on the simulator, without calling the model.
     Replay(replay::ReplayArgs),
     /// Serve a local OpenAI-compatible test server (request checks, scripted answers).
@@ -89,6 +93,7 @@ impl Cli {
             Commands::Run(args) => run::run(args).await,
             Commands::Bench(args) => bench::run(args).await,
             Commands::Demo(args) => demo::run(args).await,
+            Commands::Monitor(args) => monitor::run(args).await,
             Commands::Replay(args) => replay::run(args).await,
             Commands::FakeLlm(args) => crate::policy::vlm::fake::run_cli(args).await,
         }

@@ -1,12 +1,15 @@
 //! `optalign run`: one alignment run of one task with one policy, on a simulated rig
 //! (`--sim`) or a bench described by a rig file (`--rig`).
 
+use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use clap::Args;
 
+use super::monitor::MonitorArgs;
 use crate::lab::{LabRig, RigFile};
+use crate::monitor::Hub;
 use crate::policy::vlm::{self, ReasoningEffort, VlmOptions};
 use crate::policy::{PolicyOptions, TaskBrief, build_policy};
 use crate::rig::{MotorPath, Rig, SimRig};
@@ -43,6 +46,12 @@ pub struct RunArgs {
     /// How motor commands reach the simulated firmware.
     #[arg(long, value_enum, default_value = "in-process")]
     motors: MotorPath,
+    #[command(flatten)]
+    monitor: MonitorArgs,
+    /// Hold the run before its first action until it is resumed (or stepped) from the
+    /// monitor's page.
+    #[arg(long, requires = "monitor")]
+    paused: bool,
     #[command(flatten)]
     vlm: VlmArgs,
 }
@@ -156,9 +165,21 @@ pub async fn run(args: RunArgs) -> anyhow::Result<()> {
         Some(bench) => Box::new(LabRig::connect(bench).await?),
         None => Box::new(SimRig::new(args.task, &scenario, args.seed, args.motors).await?),
     };
+    let run_monitor = args
+        .monitor
+        .run_monitor(&out.display().to_string(), args.paused);
+    let server = match &run_monitor {
+        Some(run_monitor) => {
+            args.monitor
+                .serve(&Hub::single(run_monitor.clone()))
+                .await?
+        }
+        None => None,
+    };
     let options = RunOptions {
         out_dir: Some(out.clone()),
         seed: args.seed,
+        monitor: run_monitor,
         ..RunOptions::default()
     };
     eprintln!("run folder: {}", out.display());
@@ -170,6 +191,17 @@ pub async fn run(args: RunArgs) -> anyhow::Result<()> {
         &options,
     )
     .await?;
+    if let Some(server) = server {
+        if std::io::stdin().is_terminal() {
+            eprintln!(
+                "the run is over; its page stays up at {} until you press Enter",
+                server.url
+            );
+            tokio::task::spawn_blocking(|| std::io::stdin().read_line(&mut String::new()))
+                .await??;
+        }
+        server.close().await;
+    }
     println!(
         "{} seed {}: {} after {} evaluations, terminal error {}{}",
         summary.task,

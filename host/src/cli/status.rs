@@ -142,15 +142,7 @@ fn yes_no(value: bool) -> &'static str {
 
 /// Names the fault bits, or "none".
 pub fn describe_faults(faults: Faults) -> String {
-    let names: Vec<&str> = [
-        (Faults::EMERGENCY_STOP, "emergency-stop"),
-        (Faults::DRIVER, "driver"),
-        (Faults::POSITION_LOST, "position-lost"),
-    ]
-    .into_iter()
-    .filter(|(bit, _)| faults.has(*bit))
-    .map(|(_, name)| name)
-    .collect();
+    let names = crate::rig::fault_names(faults);
     if names.is_empty() {
         "none".into()
     } else {

@@ -12,7 +12,7 @@ use anyhow::{Context, bail};
 use async_trait::async_trait;
 use optalign_optics::seeds::{cavity_offsets, michelson_offsets, relay_offsets};
 use optalign_optics::{Cavity, Frame, Michelson, Relay, Station};
-use optalign_protocol::{AxisValue, MoveOutcome, auth};
+use optalign_protocol::{AxisValue, Command, MoveOutcome, auth};
 
 use super::camera::{Camera, CommandCamera, FolderCamera, SimCamera, SimScene, SimView};
 use super::mover::{CameraMover, CommandMover, HttpMover, ManualMover, SimMover};
@@ -20,7 +20,7 @@ use super::rigfile::{AxisRoute, CameraSpec, MoverSpec, RigFile};
 use super::scoring::LabScorer;
 use crate::link::{Client, ClientOptions, Endpoint};
 use crate::peer::{SimPeer, registry};
-use crate::rig::{Executed, Rig, Score};
+use crate::rig::{ControllerView, Executed, Rig, Score};
 use crate::scenario::ScenarioFile;
 use crate::task::relay::{RelayAction, axis_of};
 use crate::task::{Action, TaskKind};
@@ -390,6 +390,38 @@ impl Rig for LabRig {
             motor_time_s,
             camera_time_s,
         })
+    }
+
+    async fn emergency_stop(&mut self) -> anyhow::Result<()> {
+        let stops = self
+            .controllers
+            .iter()
+            .map(|client| client.command_ok(Command::EmergencyStop));
+        let results = futures::future::join_all(stops).await;
+        let mut failed = Vec::new();
+        for (result, spec) in results.into_iter().zip(&self.rig.controllers) {
+            if let Err(error) = result {
+                failed.push(format!("{:?}: {error}", spec.name));
+            }
+        }
+        anyhow::ensure!(
+            failed.is_empty(),
+            "the emergency stop did not reach every controller: {}",
+            failed.join("; ")
+        );
+        Ok(())
+    }
+
+    async fn controllers(&mut self) -> anyhow::Result<Vec<ControllerView>> {
+        let mut views = Vec::with_capacity(self.controllers.len());
+        for (client, spec) in self.controllers.iter().zip(&self.rig.controllers) {
+            let status = client
+                .status()
+                .await
+                .with_context(|| format!("status of controller {:?}", spec.name))?;
+            views.push(ControllerView::from_status(&spec.name, &status));
+        }
+        Ok(views)
     }
 
     fn score(&self) -> Score {

@@ -3,6 +3,7 @@
 //! [`SimRig`] drives a simulated scene through the simulated firmware; a lab rig drives a
 //! real bench through the same trait, so every policy works unchanged on both.
 
+mod controllers;
 mod motors;
 mod score;
 mod sim;
@@ -12,6 +13,7 @@ use optalign_optics::Frame;
 
 use crate::task::{Action, TaskKind};
 
+pub use controllers::{AxisView, ControllerView, fault_names};
 pub use motors::{MotorPath, SimMotors};
 pub use score::{CameraView, RelayStateScore, Score};
 pub use sim::SimRig;
@@ -40,4 +42,11 @@ pub trait Rig: Send {
     /// Scores the current state. In simulation this reads the hidden truth; it is for the
     /// run's records (and the privileged objective of the baselines), never for a policy.
     fn score(&self) -> Score;
+
+    /// Emergency stop on every controller of the rig: motion ends at once, the coils go
+    /// off and each controller latches the stop until it is cleared.
+    async fn emergency_stop(&mut self) -> anyhow::Result<()>;
+
+    /// Each controller's state as it reports it (for the operator's view).
+    async fn controllers(&mut self) -> anyhow::Result<Vec<ControllerView>>;
 }

@@ -8,7 +8,8 @@ use std::sync::Arc;
 use anyhow::{Context, bail};
 use optalign_firmware::Session;
 use optalign_protocol::{
-    AxisConfig, AxisValue, Command, MoveOutcome, PeerMessage, Reply, Request, RequestId, SoftLimits,
+    AxisConfig, AxisValue, Command, MoveOutcome, PeerMessage, Reply, Request, RequestId,
+    SoftLimits, Status,
 };
 
 use crate::link::{Client, ClientOptions, Endpoint};
@@ -175,6 +176,22 @@ impl SimMotors {
             }
         };
         Ok(f64::from(duration_ms) / 1000.0)
+    }
+
+    /// Emergency stop: the controller ends all motion, cuts the coils and latches.
+    pub async fn emergency_stop(&mut self) -> anyhow::Result<()> {
+        match self.request(Command::EmergencyStop).await? {
+            Reply::Ok => Ok(()),
+            other => bail!("unexpected reply to EmergencyStop: {other:?}"),
+        }
+    }
+
+    /// The controller's status reply.
+    pub async fn status(&mut self) -> anyhow::Result<Status> {
+        match self.request(Command::Status).await? {
+            Reply::Status(status) => Ok(status),
+            other => bail!("unexpected reply to Status: {other:?}"),
+        }
     }
 
     /// True shaft positions: hidden truth.

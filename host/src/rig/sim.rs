@@ -9,6 +9,7 @@ use optalign_protocol::AxisValue;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
+use super::controllers::ControllerView;
 use super::motors::{MotorPath, SimMotors};
 use super::score::{CameraView, RelayStateScore, Score};
 use super::{Executed, Rig};
@@ -190,6 +191,15 @@ impl Rig for SimRig {
             motor_time_s,
             camera_time_s: camera_move_s + self.timing.frame_s,
         })
+    }
+
+    async fn emergency_stop(&mut self) -> anyhow::Result<()> {
+        self.motors.emergency_stop().await
+    }
+
+    async fn controllers(&mut self) -> anyhow::Result<Vec<ControllerView>> {
+        let status = self.motors.status().await?;
+        Ok(vec![ControllerView::from_status("simulated", &status)])
     }
 
     fn score(&self) -> Score {

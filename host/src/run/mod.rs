@@ -7,12 +7,14 @@ mod transcript;
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
+use std::time::Instant;
 
 use anyhow::Context;
 
 pub use summary::{RunSummary, summarize};
 pub use transcript::{StepRecord, Transcript};
 
+use crate::monitor::RunMonitor;
 use crate::policy::{Feedback, Observation, Policy, PrivilegedObjective};
 use crate::rig::{Rig, Score};
 use crate::task::relay::RelayState;
@@ -29,6 +31,8 @@ pub struct RunOptions {
     pub max_consecutive_rejections: usize,
     /// Seed number, for the records.
     pub seed: u64,
+    /// The live monitor watching this run: it gets every step and can pause or stop it.
+    pub monitor: Option<RunMonitor>,
 }
 
 impl Default for RunOptions {
@@ -38,6 +42,7 @@ impl Default for RunOptions {
             save_frames: true,
             max_consecutive_rejections: 10,
             seed: 0,
+            monitor: None,
         }
     }
 }
@@ -87,6 +92,7 @@ pub async fn run_episode(
         limits: limits.clone(),
         relay: RelayState::default(),
     };
+    let monitor = options.monitor.as_ref();
     let mut transcript = match &options.out_dir {
         Some(dir) => Some(Transcript::create(
             dir,
@@ -94,9 +100,22 @@ pub async fn run_episode(
             &policy.name(),
             options.seed,
             budget,
+            monitor.cloned(),
         )?),
         None => None,
     };
+    if let Some(monitor) = monitor {
+        let frames = (options.save_frames)
+            .then(|| transcript.as_ref().map(|t| t.dir().join("frames")))
+            .flatten();
+        monitor.begin(
+            &task.to_string(),
+            &policy.name(),
+            options.seed,
+            budget,
+            frames,
+        );
+    }
     let mut image = Arc::new(
         rig.initial_image()
             .await
@@ -111,12 +130,26 @@ pub async fn run_episode(
     if let (Some(objective), Some(score)) = (objective, scores.last()) {
         objective.publish(score.objective());
     }
+    if let (Some(monitor), Some(score)) = (monitor, scores.last()) {
+        monitor.start(image.clone(), score);
+        show_controllers(rig, monitor).await;
+    }
     let mut feedback = Feedback::Start;
     let mut evaluations = 0usize;
     let mut consecutive_rejections = 0usize;
     let mut declared_done = false;
     let mut failure = None;
+    let mut stop = None;
     while evaluations < budget {
+        let gate =
+            operator_gate(monitor, transcript.as_mut(), evaluations, GatePoint::Decide).await?;
+        let let_through = match gate {
+            (Some(reason), _) => {
+                stop = Some(reason);
+                break;
+            }
+            (None, single) => single,
+        };
         let observation = Observation {
             evaluations_used: evaluations,
             remaining: budget - evaluations,
@@ -124,7 +157,15 @@ pub async fn run_episode(
             image_path: image_path.clone(),
             feedback: feedback.clone(),
         };
-        let decision = match policy.decide(&observation).await {
+        let decided = tokio::select! {
+            biased;
+            reason = stop_signal(monitor) => {
+                stop = Some(reason);
+                break;
+            }
+            decided = policy.decide(&observation) => decided,
+        };
+        let decision = match decided {
             Ok(decision) => decision,
             Err(error) => {
                 failure = Some(format!("policy failed: {error}"));
@@ -136,6 +177,9 @@ pub async fn run_episode(
             let record = StepRecord::rejected(evaluations, &decision, &reason);
             if let Some(transcript) = transcript.as_mut() {
                 transcript.append(&record)?;
+            }
+            if let Some(monitor) = monitor {
+                monitor.step(&record, None);
             }
             records.push(record);
             feedback = Feedback::Rejected {
@@ -151,11 +195,24 @@ pub async fn run_episode(
             continue;
         }
         consecutive_rejections = 0;
+        let point = GatePoint::Execute { let_through };
+        if let (Some(reason), _) =
+            operator_gate(monitor, transcript.as_mut(), evaluations, point).await?
+        {
+            stop = Some(reason);
+            break;
+        }
         state.apply(&decision.action);
-        let executed = rig
-            .execute(&decision.action)
-            .await
-            .with_context(|| format!("executing {}", decision.action.describe()))?;
+        let executed = tokio::select! {
+            biased;
+            reason = stop_signal(monitor) => {
+                stop = Some(reason);
+                break;
+            }
+            executed = rig.execute(&decision.action) => executed,
+        };
+        let executed =
+            executed.with_context(|| format!("executing {}", decision.action.describe()))?;
         evaluations += 1;
         image_path = save_frame(transcript.as_mut(), options, evaluations, &executed.image)?;
         let score = rig.score();
@@ -175,8 +232,12 @@ pub async fn run_episode(
         if let Some(transcript) = transcript.as_mut() {
             transcript.append(&record)?;
         }
-        records.push(record);
         image = Arc::new(executed.image);
+        if let Some(monitor) = monitor {
+            monitor.step(&record, Some(image.clone()));
+            show_controllers(rig, monitor).await;
+        }
+        records.push(record);
         if decision.action.is_done() {
             declared_done = true;
             break;
@@ -184,6 +245,10 @@ pub async fn run_episode(
         feedback = Feedback::Executed {
             action: decision.action,
         };
+    }
+    if let Some(reason) = stop {
+        failure =
+            Some(emergency_stop(rig, monitor, transcript.as_mut(), evaluations, &reason).await?);
     }
     let summary = summarize(
         task,
@@ -198,7 +263,98 @@ pub async fn run_episode(
     if let Some(transcript) = transcript.as_mut() {
         transcript.finish(&summary)?;
     }
+    if let Some(monitor) = monitor {
+        monitor.finish(&summary);
+    }
     Ok(summary)
+}
+
+/// Resolves with the reason when the operator stops the run; never without a monitor.
+async fn stop_signal(monitor: Option<&RunMonitor>) -> String {
+    match monitor {
+        Some(monitor) => monitor.stopped().await,
+        None => std::future::pending().await,
+    }
+}
+
+/// Where in an evaluation the operator's gate sits.
+#[derive(Clone, Copy, PartialEq)]
+enum GatePoint {
+    /// Before the policy decides.
+    Decide,
+    /// Before the decided action runs; `let_through` when the operator let this one
+    /// action through a pause at the decide gate.
+    Execute { let_through: bool },
+}
+
+/// Before a decision and before its action: holds the run while the operator has it
+/// paused (the hold and its release logged). Returns the stop reason when the operator
+/// stopped the run, and whether this evaluation was let through a pause as a single step.
+async fn operator_gate(
+    monitor: Option<&RunMonitor>,
+    mut transcript: Option<&mut Transcript>,
+    evaluations: usize,
+    point: GatePoint,
+) -> anyhow::Result<(Option<String>, bool)> {
+    let Some(monitor) = monitor else {
+        return Ok((None, false));
+    };
+    let control = monitor.control();
+    let passes = point == GatePoint::Execute { let_through: true };
+    let mut single = passes;
+    if control.paused && control.stop.is_none() && !passes {
+        if let Some(transcript) = transcript.as_mut() {
+            transcript.pause(evaluations)?;
+        }
+        monitor.show_paused(true);
+        let held = Instant::now();
+        single = monitor.released().await;
+        if monitor.control().stop.is_none() {
+            if let Some(transcript) = transcript {
+                transcript.resume(evaluations, held.elapsed().as_secs_f64(), single)?;
+            }
+            monitor.show_paused(monitor.control().paused);
+        }
+    }
+    Ok((monitor.control().stop, single))
+}
+
+/// Stops every controller of the rig at once and records it; returns the run's reason
+/// for ending (with the stop's own failure, if it failed).
+async fn emergency_stop(
+    rig: &mut dyn Rig,
+    monitor: Option<&RunMonitor>,
+    transcript: Option<&mut Transcript>,
+    evaluations: usize,
+    reason: &str,
+) -> anyhow::Result<String> {
+    let stopped = rig.emergency_stop().await;
+    let stop_error = stopped.as_ref().err().map(|e| format!("{e:#}"));
+    let controllers = match rig.controllers().await {
+        Ok(controllers) => controllers,
+        Err(error) => {
+            tracing::warn!("no controller state after the emergency stop: {error:#}");
+            Vec::new()
+        }
+    };
+    if let Some(transcript) = transcript {
+        transcript.stop(evaluations, reason, stop_error.as_deref(), &controllers)?;
+    }
+    if let Some(monitor) = monitor {
+        monitor.set_controllers(controllers);
+    }
+    Ok(match stop_error {
+        None => reason.to_owned(),
+        Some(error) => format!("{reason}; the emergency stop failed: {error}"),
+    })
+}
+
+/// Shows the controllers' state on the monitor (a failed status read only leaves it stale).
+async fn show_controllers(rig: &mut dyn Rig, monitor: &RunMonitor) {
+    match rig.controllers().await {
+        Ok(controllers) => monitor.set_controllers(controllers),
+        Err(error) => tracing::warn!("no controller state for the monitor: {error:#}"),
+    }
 }
 
 fn save_frame(

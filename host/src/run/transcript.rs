@@ -12,8 +12,9 @@ use serde::{Deserialize, Serialize};
 use serde_json::json;
 
 use super::summary::RunSummary;
+use crate::monitor::RunMonitor;
 use crate::policy::Decision;
-use crate::rig::{Executed, Score};
+use crate::rig::{ControllerView, Executed, Score};
 use crate::task::{Action, TaskKind};
 
 /// One evaluation, or one rejected action, as recorded.
@@ -84,6 +85,8 @@ impl StepRecord {
 pub struct Transcript {
     dir: PathBuf,
     lines: BufWriter<File>,
+    /// Sees every line as it is written (the live monitor's tail).
+    observer: Option<RunMonitor>,
 }
 
 impl Transcript {
@@ -94,6 +97,7 @@ impl Transcript {
         policy: &str,
         seed: u64,
         budget: usize,
+        observer: Option<RunMonitor>,
     ) -> anyhow::Result<Self> {
         std::fs::create_dir_all(dir.join("frames"))
             .with_context(|| format!("cannot create run folder {}", dir.display()))?;
@@ -103,6 +107,7 @@ impl Transcript {
         let mut transcript = Self {
             dir: dir.to_owned(),
             lines: BufWriter::new(file),
+            observer,
         };
         transcript.line(&json!({
             "type": "run",
@@ -137,6 +142,45 @@ impl Transcript {
         self.line(&value)
     }
 
+    /// The operator paused the run: it is held before its next action.
+    pub fn pause(&mut self, evaluation: usize) -> anyhow::Result<()> {
+        self.line(&json!({ "type": "pause", "evaluation": evaluation }))
+    }
+
+    /// The operator let a paused run go on after `held_s` seconds: for good, or for
+    /// `single_step` one action.
+    pub fn resume(
+        &mut self,
+        evaluation: usize,
+        held_s: f64,
+        single_step: bool,
+    ) -> anyhow::Result<()> {
+        self.line(&json!({
+            "type": "resume",
+            "evaluation": evaluation,
+            "held_s": held_s,
+            "single_step": single_step,
+        }))
+    }
+
+    /// The operator stopped the run: the emergency stop sent to every controller, what
+    /// became of it, and the controllers' state as they report it afterwards.
+    pub fn stop(
+        &mut self,
+        evaluation: usize,
+        reason: &str,
+        emergency_stop_error: Option<&str>,
+        controllers: &[ControllerView],
+    ) -> anyhow::Result<()> {
+        self.line(&json!({
+            "type": "stop",
+            "evaluation": evaluation,
+            "reason": reason,
+            "emergency_stop_error": emergency_stop_error,
+            "controllers": controllers,
+        }))
+    }
+
     /// Writes the closing line and `summary.json`.
     pub fn finish(&mut self, summary: &RunSummary) -> anyhow::Result<()> {
         let mut value = serde_json::to_value(summary)?;
@@ -160,6 +204,10 @@ impl Transcript {
     fn line(&mut self, value: &serde_json::Value) -> anyhow::Result<()> {
         serde_json::to_writer(&mut self.lines, value)?;
         self.lines.write_all(b"\n")?;
-        self.lines.flush().context("cannot write the transcript")
+        self.lines.flush().context("cannot write the transcript")?;
+        if let Some(observer) = &self.observer {
+            observer.transcript_line(&value.to_string());
+        }
+        Ok(())
     }
 }
