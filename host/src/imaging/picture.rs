@@ -36,6 +36,12 @@ const MIN_NOISE: f64 = 0.3;
 /// Above this share of background pixels at 0, the noise is read from the spread above black
 /// instead of from neighbour differences (which clipping shrinks).
 const CLIPPED_DARK_SHARE: f64 = 0.02;
+/// Above this share of a cell's pixels at 0, its level is read from the values above black
+/// (below it, the mean of the clipped values is within 0.05 σ of the level).
+const CELL_CLIPPED_SHARE: f64 = 0.1;
+/// Below this share of cells with a level (the rest read nearly all black), the background
+/// is taken as black wherever it reads so.
+const MIN_KNOWN_SHARE: f64 = 0.3;
 /// How far above the share of clipped pixels a quantile used for the noise must lie.
 const CLIP_MARGIN: f64 = 0.05;
 
@@ -63,13 +69,18 @@ impl Picture {
         let noise = plane.noise;
         let mut light = Vec::with_capacity(raw.len());
         for (y, row) in raw.chunks_exact(width).enumerate() {
-            let start = plane.at(0, y) as f32;
-            let step = plane.b as f32;
-            light.extend(
-                row.iter()
-                    .enumerate()
-                    .map(|(x, &p)| f32::from(p) - (start + step * x as f32)),
-            );
+            if plane.clipped {
+                let background = plane.background_row(y, width);
+                light.extend(row.iter().zip(&background).map(|(&p, b)| f32::from(p) - b));
+            } else {
+                let start = plane.at(0, y) as f32;
+                let step = plane.b as f32;
+                light.extend(
+                    row.iter()
+                        .enumerate()
+                        .map(|(x, &p)| f32::from(p) - (start + step * x as f32)),
+                );
+            }
         }
         remove_column_streaks(&mut light, width, height, noise);
         repair_hot_pixels(&mut light, width, height, noise);
@@ -141,17 +152,34 @@ impl Picture {
     }
 }
 
-/// The background plane `a + b x + c y` and the read noise.
+/// The background plane `a + b x + c y` and the read noise; `clipped` when black clips
+/// enough of the background that a pixel's expected value is not the plane's.
 struct Plane {
     a: f64,
     b: f64,
     c: f64,
     noise: f64,
+    clipped: bool,
 }
 
 impl Plane {
     fn at(&self, x: usize, y: usize) -> f64 {
         self.a + self.b * (x as f64 + 0.5) + self.c * (y as f64 + 0.5)
+    }
+
+    /// The background a pixel shows: the plane, or where black clips the noise, the mean of
+    /// the clipped values (a plane sloping below black reads 0 there, not less).
+    fn background_row(&self, y: usize, width: usize) -> Vec<f32> {
+        (0..width)
+            .map(|x| {
+                let level = self.at(x, y);
+                if self.clipped {
+                    (self.noise * clipped_normal_mean(level / self.noise)) as f32
+                } else {
+                    level as f32
+                }
+            })
+            .collect()
     }
 
     /// Fits the plane to cell medians, rejecting cells with light, and measures the noise
@@ -176,23 +204,44 @@ impl Plane {
                     continue;
                 }
                 let centre = [(x0 + x1) as f64 / 2.0, (y0 + y1) as f64 / 2.0];
+                let above_black = histogram.above_black();
+                let black = histogram.counts[0];
+                // Where black clips many pixels, the cell's mean is not its level: the
+                // level is read off the values above black (it may lie below 0).
+                let level = if f64::from(black) > CELL_CLIPPED_SHARE * f64::from(histogram.total) {
+                    above_black.map(|(level, _)| level)
+                } else {
+                    Some(histogram.robust_mean())
+                };
                 cells.push(Cell {
                     centre,
-                    level: histogram.robust_mean(),
+                    level,
                     bounds: [x0, y0, x1, y1],
-                    black: histogram.counts[0],
+                    black,
                     total: histogram.total,
-                    noise_above_black: histogram.noise_above_clip(),
+                    noise_above_black: above_black.map(|(_, noise)| noise),
                 });
             }
         }
-        let mut keep = vec![true; cells.len()];
+        // A camera whose black clips nearly the whole background: its level is black.
+        let unknown = cells.iter().filter(|c| c.level.is_none()).count();
+        if (unknown as f64) > (1.0 - MIN_KNOWN_SHARE) * cells.len() as f64 {
+            for cell in cells.iter_mut().filter(|c| c.level.is_none()) {
+                cell.level = Some(0.0);
+            }
+        }
+        let known: Vec<bool> = cells.iter().map(|c| c.level.is_some()).collect();
+        let mut keep = known.clone();
         let mut plane = [0.0; 3];
         for _ in 0..5 {
             plane = least_squares_plane(&cells, &keep).unwrap_or(plane);
             let residuals: Vec<f64> = cells
                 .iter()
-                .map(|c| c.level - (plane[0] + plane[1] * c.centre[0] + plane[2] * c.centre[1]))
+                .map(|c| {
+                    c.level.map_or(f64::INFINITY, |level| {
+                        level - (plane[0] + plane[1] * c.centre[0] + plane[2] * c.centre[1])
+                    })
+                })
                 .collect();
             let kept: Vec<f64> = residuals
                 .iter()
@@ -203,6 +252,7 @@ impl Plane {
             let spread = 1.4826 * median(kept).unwrap_or(0.0);
             let limit = CELL_OUTLIER * spread.max(0.5);
             let next: Vec<bool> = residuals.iter().map(|r| r.abs() <= limit).collect();
+            debug_assert!(next.iter().zip(&known).all(|(n, k)| !n || *k));
             if next == keep || next.iter().filter(|k| **k).count() < 3 {
                 break;
             }
@@ -236,15 +286,17 @@ impl Plane {
             b: plane[1],
             c: plane[2],
             noise,
+            clipped,
         }
     }
 }
 
-/// One cell of the background grid: its robust level, its pixel bounds `[x0, y0, x1, y1)`,
+/// One cell of the background grid: its level, its pixel bounds `[x0, y0, x1, y1)`,
 /// how many of its samples read 0 out of how many, and the noise measured above black.
 struct Cell {
     centre: [f64; 2],
-    level: f64,
+    /// The background level, `None` when nearly everything reads black.
+    level: Option<f64>,
     bounds: [usize; 4],
     black: u32,
     total: u32,
@@ -260,6 +312,25 @@ const NORMAL_POINTS: [(f64, f64); 5] = [
     (1.5, 0.9332),
     (2.0, 0.9772),
 ];
+
+/// The mean of `max(0, t + Z)` for a standard normal `Z`: `t Φ(t) + φ(t)`, what a pixel
+/// whose level is `t` noise deviations above black reads on average.
+fn clipped_normal_mean(t: f64) -> f64 {
+    // Φ by the complementary error function's Abramowitz-Stegun 7.1.26 fit (error < 1.5e-7).
+    let phi = (-0.5 * t * t).exp() / (2.0 * std::f64::consts::PI).sqrt();
+    let x = t.abs() / std::f64::consts::SQRT_2;
+    let k = 1.0 / (1.0 + 0.3275911 * x);
+    let erfc = k
+        * (0.254829592
+            + k * (-0.284496736 + k * (1.421413741 + k * (-1.453152027 + k * 1.061405429))))
+        * (-x * x).exp();
+    let cdf = if t >= 0.0 {
+        1.0 - 0.5 * erfc
+    } else {
+        0.5 * erfc
+    };
+    t * cdf + phi
+}
 
 /// How many bytes equal `value`.
 fn bytecount(bytes: &[u8], value: u8) -> usize {
@@ -321,7 +392,7 @@ impl Histogram {
         // Half the pixels of a dark level near black read 0, which shrinks the MAD far
         // below the noise: the spread above black keeps the cut out of the noise's tail.
         let spread = (1.4826 * mad)
-            .max(self.noise_above_clip().unwrap_or(0.0))
+            .max(self.above_black().map_or(0.0, |(_, noise)| noise))
             .max(1.0);
         let limit = median + 8.0 * spread;
         let (sum, n) = self
@@ -335,18 +406,22 @@ impl Histogram {
         if n == 0.0 { median } else { sum / n }
     }
 
-    /// The read noise from the spread of the values above black, when many background
-    /// pixels clip at 0 (a dark level within a few σ of black), where differences of
-    /// clipped neighbours understate it. `None` when too little lies above the clip.
-    fn noise_above_clip(&self) -> Option<f64> {
+    /// The level and read noise of values that black clips, from two quantiles one σ
+    /// apart above the clipped share (for Gaussian noise, quantile p lies at level + z σ).
+    /// `None` when too little lies above black.
+    fn above_black(&self) -> Option<(f64, f64)> {
         let black = f64::from(self.counts[0]) / f64::from(self.total.max(1));
         let lower = NORMAL_POINTS
             .iter()
             .position(|&(_, p)| p > black + CLIP_MARGIN)?;
         let (z_low, p_low) = NORMAL_POINTS[lower];
         let (z_high, p_high) = *NORMAL_POINTS.get(lower + 2)?;
-        let spread = f64::from(self.quantile(p_high)) - f64::from(self.quantile(p_low));
-        Some(spread / (z_high - z_low))
+        let (low, high) = (
+            f64::from(self.quantile(p_low)),
+            f64::from(self.quantile(p_high)),
+        );
+        let noise = (high - low) / (z_high - z_low);
+        Some((low - z_low * noise, noise))
     }
 
     /// The read noise from absolute differences of neighbouring background pixels: their
@@ -388,7 +463,7 @@ fn least_squares_plane(cells: &[Cell], keep: &[bool]) -> Option<[f64; 3]> {
     for (cell, _) in cells.iter().zip(keep).filter(|(_, k)| **k) {
         let row = nalgebra::Vector3::new(1.0, cell.centre[0], cell.centre[1]);
         normal += row * row.transpose();
-        rhs += row * cell.level;
+        rhs += row * cell.level.unwrap_or(0.0);
     }
     let solution = normal.try_inverse()? * rhs;
     Some([solution[0], solution[1], solution[2]])
