@@ -3,6 +3,7 @@
 //! [`SimRig`] drives a simulated scene through the simulated firmware; a lab rig drives a
 //! real bench through the same trait, so every policy works unchanged on both.
 
+mod downsample;
 mod motors;
 mod score;
 mod sim;
