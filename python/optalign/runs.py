@@ -50,8 +50,9 @@ def bench(
     ``pandas.DataFrame(rows)``."""
     if isinstance(tasks, str) or isinstance(policies, str):
         raise TypeError("tasks and policies are lists of names, e.g. ['cavity']")
-    return json.loads(
+    table = json.loads(
         _native.bench_json(
             list(tasks), list(policies), [int(s) for s in seeds], _path(scenario), motors, jobs
         )
     )
+    return [dict(zip(table["columns"], values)) for values in table["rows"]]

@@ -8,37 +8,38 @@ use std::sync::Arc;
 use indicatif::ProgressBar;
 use optalign::bench::{MatrixOptions, RunRecord, RunSpec, matrix, run_matrix, run_one};
 use pyo3::prelude::*;
+use serde_json::json;
 
 use crate::episode::{load_scenario, parse_motors, parse_task};
 use crate::errors::{failed, invalid};
 use crate::runtime;
 
-/// The row of one run, with the columns of `results.csv`.
-fn row(record: &RunRecord) -> serde_json::Value {
+/// The row of one run: the columns of `results.csv`, in its order.
+fn row(record: &RunRecord) -> Vec<(&'static str, serde_json::Value)> {
     let summary = &record.summary;
-    let milestone = |m: usize| summary.milestones.and_then(|all| all[m]);
-    serde_json::json!({
-        "task": summary.task,
-        "policy": summary.policy,
-        "seed": summary.seed,
-        "success": summary.success,
-        "declared_done": summary.declared_done,
-        "terminal_error": summary.terminal_error,
-        "best_error": summary.best_error,
-        "evaluations_used": summary.evaluations_used,
-        "budget": summary.budget,
-        "rejected_actions": summary.rejected_actions,
-        "motor_time_s": summary.motor_time_s,
-        "camera_time_s": summary.camera_time_s,
-        "agent_time_s": summary.agent_time_s,
-        "wall_clock_s": summary.wall_clock_s,
-        "milestone_m1": milestone(0),
-        "milestone_m2": milestone(1),
-        "milestone_m3": milestone(2),
-        "milestone_m4": milestone(3),
-        "elapsed_s": record.elapsed_s,
-        "failure": summary.failure,
-    })
+    let milestone = |m: usize| json!(summary.milestones.and_then(|all| all[m]));
+    vec![
+        ("task", json!(summary.task)),
+        ("policy", json!(summary.policy)),
+        ("seed", json!(summary.seed)),
+        ("success", json!(summary.success)),
+        ("declared_done", json!(summary.declared_done)),
+        ("terminal_error", json!(summary.terminal_error)),
+        ("best_error", json!(summary.best_error)),
+        ("evaluations_used", json!(summary.evaluations_used)),
+        ("budget", json!(summary.budget)),
+        ("rejected_actions", json!(summary.rejected_actions)),
+        ("motor_time_s", json!(summary.motor_time_s)),
+        ("camera_time_s", json!(summary.camera_time_s)),
+        ("agent_time_s", json!(summary.agent_time_s)),
+        ("wall_clock_s", json!(summary.wall_clock_s)),
+        ("milestone_m1", milestone(0)),
+        ("milestone_m2", milestone(1)),
+        ("milestone_m3", milestone(2)),
+        ("milestone_m4", milestone(3)),
+        ("elapsed_s", json!(record.elapsed_s)),
+        ("failure", json!(summary.failure)),
+    ]
 }
 
 /// One simulated run; returns its summary as JSON. With `out`, the transcript, frames and
@@ -75,7 +76,8 @@ pub fn run_json(
     serde_json::to_string(&record.summary).map_err(invalid)
 }
 
-/// A task x policy x seed matrix on `jobs` threads; returns one row per run as JSON.
+/// A task x policy x seed matrix on `jobs` threads; returns JSON `{"columns": [..],
+/// "rows": [[..], ..]}`, one row per run in the matrix's order.
 #[pyfunction]
 #[pyo3(signature = (tasks, policies, seeds, scenario=None, motors="in-process", jobs=None))]
 pub fn bench_json(
@@ -109,5 +111,14 @@ pub fn bench_json(
     let records = py
         .detach(|| run_matrix(&specs, &options, &ProgressBar::hidden()))
         .map_err(failed)?;
-    serde_json::to_string(&records.iter().map(row).collect::<Vec<_>>()).map_err(invalid)
+    let rows: Vec<_> = records.iter().map(row).collect();
+    let columns: Vec<&str> = rows
+        .first()
+        .map(|first| first.iter().map(|(name, _)| *name).collect())
+        .unwrap_or_default();
+    let values: Vec<Vec<serde_json::Value>> = rows
+        .into_iter()
+        .map(|row| row.into_iter().map(|(_, value)| value).collect())
+        .collect();
+    serde_json::to_string(&json!({ "columns": columns, "rows": values })).map_err(invalid)
 }
