@@ -1,10 +1,19 @@
 """The controller client against a simulated controller on loopback: moves, the access
 key, the emergency stop, configuration and clear errors."""
 
+import threading
+import time
+
 import pytest
 
 import optalign
-from optalign import Controller, ControllerError, ControllerRefused, SimulatedPeer
+from optalign import (
+    Controller,
+    ControllerError,
+    ControllerRefused,
+    ControllerTimeout,
+    SimulatedPeer,
+)
 
 KEY = "s3cret-for-tests"
 
@@ -80,10 +89,40 @@ def test_bad_addresses_and_axes_are_refused_clearly(peer):
     closed = SimulatedPeer()
     url = closed.url
     closed.close()
-    with pytest.raises(ControllerError, match="cannot reach"):
+    with pytest.raises(ControllerError, match=f"connecting to {url}"):
         Controller(url, timeout=0.3)
 
 
 def test_the_exceptions_form_one_family():
     assert issubclass(optalign.ControllerRefused, optalign.ControllerError)
     assert issubclass(optalign.ControllerTimeout, optalign.ControllerError)
+
+
+def test_stop_from_another_thread_ends_a_blocking_move_early(peer):
+    controller = Controller(peer.url, key=KEY)
+    outcome = {}
+
+    def long_move():
+        try:
+            controller.move_to({0: 90_000})
+        except ControllerError as error:
+            outcome["error"] = str(error)
+
+    mover = threading.Thread(target=long_move)
+    mover.start()
+    time.sleep(0.3)
+    controller.stop()
+    mover.join(timeout=10)
+    assert not mover.is_alive()
+    assert "move ended early (Stopped)" in outcome["error"]
+    stopped_at = controller.positions()[0]
+    assert 0 < stopped_at < 90_000
+
+
+def test_a_move_that_outlasts_its_timeout_raises_and_says_what_to_do(peer):
+    controller = Controller(peer.url, key=KEY)
+    with pytest.raises(ControllerTimeout, match=r"stop\(\) or emergency_stop\(\)"):
+        controller.move_to({0: 90_000}, timeout=0.2)
+    controller.stop()
+    with pytest.raises(ValueError, match="timeout must be a positive number"):
+        controller.move_to({0: 0}, timeout=-1)

@@ -1,6 +1,8 @@
 """The Gymnasium environments: the checker, seeds that match the bench, bounds, info,
 termination and truncation, both motor paths, vectorised use."""
 
+import os
+
 import gymnasium
 import numpy as np
 import pytest
@@ -200,6 +202,18 @@ def test_motors_through_the_simulated_peer_give_the_in_process_episode():
         b = peer.step(np.array(command))
         np.testing.assert_array_equal(a[0], b[0])
         assert a[4]["state"] == b[4]["state"]
+
+
+@pytest.mark.skipif(not os.path.isdir("/proc/self/fd"), reason="counts open files in /proc")
+def test_resetting_a_peer_environment_does_not_leave_its_old_peers_listening():
+    env = make("optalign/Cavity-v0", motors="peer")
+    env.reset(seed=0)
+    env.step(np.array([10, 10]))
+    before = len(os.listdir("/proc/self/fd"))
+    for seed in range(1, 21):
+        env.reset(seed=seed)
+        env.step(np.array([10, 10]))
+    assert len(os.listdir("/proc/self/fd")) - before < 5
 
 
 def test_environments_run_in_an_async_vector():
