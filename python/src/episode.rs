@@ -82,19 +82,13 @@ impl Episode {
     ) -> PyResult<Self> {
         let task = parse_task(task)?;
         let scenario = load_scenario(scenario)?;
-        let camera = scenario.geometry(task).image_px.unwrap_or_default();
-        if let Some((width, height)) = obs_size
-            && !((1..=camera[0]).contains(&width) && (1..=camera[1]).contains(&height))
-        {
-            return Err(invalid(format!(
-                "obs_size=({width}, {height}) does not fit the {task} camera of {}x{}: give (width, height), each from 1 up to the camera's",
-                camera[0], camera[1]
-            )));
-        }
+        let frame_size = obs_size.map(|(width, height)| [width, height]);
+        SimRig::check_frame_size(task, &scenario, frame_size)
+            .map_err(|error| invalid(format!("obs_size: {error}")))?;
         Ok(Self {
             task,
             motors: parse_motors(motors)?,
-            frame_size: obs_size.map(|(width, height)| [width, height]),
+            frame_size,
             scenario,
             runtime: runtime::single_threaded()?,
             live: Mutex::new(None),

@@ -67,16 +67,9 @@ impl SimRig {
         path: MotorPath,
         frame_size: Option<[u32; 2]>,
     ) -> anyhow::Result<Self> {
+        Self::check_frame_size(task, scenario, frame_size)?;
         let camera = scenario.geometry(task).image_px.unwrap_or_default();
         let frame_size = frame_size.filter(|&size| size != camera);
-        if let Some([width, height]) = frame_size {
-            anyhow::ensure!(
-                (1..=camera[0]).contains(&width) && (1..=camera[1]).contains(&height),
-                "a frame size of {width}x{height} does not fit the {task} camera of {}x{}: each side must be 1 up to the camera's",
-                camera[0],
-                camera[1]
-            );
-        }
         let scene = match task {
             TaskKind::Michelson => {
                 let offsets = michelson_offsets(&scenario.michelson, seed);
@@ -113,6 +106,25 @@ impl SimRig {
             centred_tolerance_px: scenario.tasks.relay.centred_tolerance_px,
             frame_size,
         })
+    }
+
+    /// Checks that frames of `frame_size` (width, height) can be had from `task`'s camera:
+    /// each side from 1 up to the camera's.
+    pub fn check_frame_size(
+        task: TaskKind,
+        scenario: &ScenarioFile,
+        frame_size: Option<[u32; 2]>,
+    ) -> anyhow::Result<()> {
+        let camera = scenario.geometry(task).image_px.unwrap_or_default();
+        if let Some([width, height]) = frame_size {
+            anyhow::ensure!(
+                (1..=camera[0]).contains(&width) && (1..=camera[1]).contains(&height),
+                "a frame size of ({width}, {height}) does not fit the {task} camera of {}x{}: each side must be 1 up to the camera's",
+                camera[0],
+                camera[1]
+            );
+        }
+        Ok(())
     }
 
     fn render(&mut self) -> anyhow::Result<Frame> {
