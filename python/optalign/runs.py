@@ -25,7 +25,7 @@ def run(
     out: Optional[PathLike] = None,
 ) -> dict:
     """Runs one episode of ``task`` ("michelson", "cavity" or "relay") with ``policy``
-    ("vision", "bo" or "random") on the simulated rig of ``seed`` and returns the run
+    ("vision", "bo", "random", or "manual" at a prompt on standard input) on the simulated rig of ``seed`` and returns the run
     summary (success, terminal and best error, evaluations, error traces, modelled time).
 
     ``scenario`` is a scenario TOML file (defaults when omitted); ``motors`` is

@@ -42,6 +42,23 @@ fn row(record: &RunRecord) -> Vec<(&'static str, serde_json::Value)> {
     ]
 }
 
+/// The policies a run from Python can use.
+const POLICIES: [&str; 4] = ["vision", "bo", "random", "manual"];
+
+/// Refuses a policy Python cannot run, saying which it can.
+fn check_policy(name: &str) -> PyResult<()> {
+    match name {
+        _ if POLICIES.contains(&name) => Ok(()),
+        "vlm" => Err(invalid(
+            "the vlm policy needs the command line's model settings: run it with `optalign run --policy vlm --model ...`",
+        )),
+        _ => Err(invalid(format!(
+            "unknown policy {name:?}: use {}",
+            POLICIES.join(", ")
+        ))),
+    }
+}
+
 /// One simulated run; returns its summary as JSON. With `out`, the transcript, frames and
 /// summary go to that folder as with `optalign run`.
 #[pyfunction]
@@ -55,6 +72,7 @@ pub fn run_json(
     motors: &str,
     out: Option<PathBuf>,
 ) -> PyResult<String> {
+    check_policy(policy)?;
     let spec = RunSpec {
         task: parse_task(task)?,
         policy: policy.to_owned(),
@@ -97,6 +115,9 @@ pub fn bench_json(
         return Err(invalid(
             "a bench needs at least one task, one policy and one seed",
         ));
+    }
+    for policy in &policies {
+        check_policy(policy)?;
     }
     let scenario = Arc::new(load_scenario(scenario)?);
     let specs = matrix(&tasks, &policies, &seeds, &scenario, None, None);

@@ -45,5 +45,7 @@ def test_bad_names_are_refused_clearly():
         optalign.bench([], ["random"], [0])
     with pytest.raises(TypeError, match="lists of names"):
         optalign.bench("cavity", ["random"], [0])
-    with pytest.raises(RuntimeError, match="policy"):
+    with pytest.raises(ValueError, match='unknown policy "oracle": use vision, bo, random'):
         optalign.run("cavity", policy="oracle")
+    with pytest.raises(ValueError, match="optalign run --policy vlm"):
+        optalign.bench(["cavity"], ["vlm"], [0])
