@@ -208,6 +208,13 @@ impl<S: Storage> Controller<S> {
         self.now_us
     }
 
+    /// When the running move's last step falls due, `None` while idle. Step times are
+    /// fixed at planning, so a simulation on instant time may poll once at this time and
+    /// get every step of the move, in order.
+    pub fn motion_end_us(&self) -> Option<u64> {
+        self.active.as_ref().map(Move::end_us)
+    }
+
     /// When `poll` must next run: at once when work is waiting, at the next step, at a
     /// move's start, or when idle coils are due to be released; `None` when nothing is.
     pub fn next_deadline_us(&self) -> Option<u64> {

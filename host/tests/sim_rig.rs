@@ -1,5 +1,6 @@
 //! The simulated rig end to end: exact alignment scores zero in all three tasks, the
-//! in-process and over-the-peer motor paths agree, and a run writes its transcript.
+//! in-process and over-the-peer motor paths agree, a run writes its transcript, and frames
+//! come at a smaller size when asked.
 
 use optalign::policy::{Decision, Observation, Policy, PolicyError};
 use optalign::rig::{MotorPath, Rig, Score, SimRig};
@@ -219,4 +220,49 @@ async fn a_run_writes_its_transcript_and_rejections_spend_nothing() {
     );
     assert!(dir.path().join("frames/0002.png").exists());
     assert!(dir.path().join("summary.json").exists());
+}
+
+#[tokio::test]
+async fn frames_come_at_the_asked_size_and_the_state_is_the_same() {
+    let scenario = ScenarioFile::default();
+    for (task, size) in [
+        (TaskKind::Michelson, [160, 90]),
+        (TaskKind::Cavity, [64, 51]),
+        (TaskKind::Relay, [64, 48]),
+    ] {
+        let mut full = SimRig::new(task, &scenario, 5, MotorPath::InProcess)
+            .await
+            .unwrap();
+        let mut small =
+            SimRig::with_frame_size(task, &scenario, 5, MotorPath::InProcess, Some(size))
+                .await
+                .unwrap();
+        let first = small.initial_image().await.unwrap();
+        assert_eq!([first.width(), first.height()], size, "{task}");
+        full.initial_image().await.unwrap();
+        let action = aligning_actions(task, &scenario, 5).remove(0);
+        let executed = small.execute(&action).await.unwrap();
+        assert_eq!([executed.image.width(), executed.image.height()], size);
+        full.execute(&action).await.unwrap();
+        assert_eq!(
+            small.score(),
+            full.score(),
+            "{task}: the hidden state is the same"
+        );
+    }
+    let error = SimRig::with_frame_size(
+        TaskKind::Cavity,
+        &scenario,
+        0,
+        MotorPath::InProcess,
+        Some([2000, 10]),
+    )
+    .await
+    .err()
+    .unwrap()
+    .to_string();
+    assert!(
+        error.contains("does not fit the cavity camera of 1280x1024"),
+        "{error}"
+    );
 }

@@ -236,4 +236,49 @@ mod tests {
         assert_eq!(union(&(5..9), &(0..0)), 5..9);
         assert_eq!(union(&(5..9), &(20..30)), 5..30);
     }
+
+    /// The centroid of the light well above the noise floor, px.
+    fn centroid(frame: &Frame) -> [f64; 2] {
+        let threshold = 30.0;
+        let (mut sum, mut sx, mut sy) = (0.0, 0.0, 0.0);
+        for y in 0..frame.height() {
+            for x in 0..frame.width() {
+                let light = (f64::from(frame.pixel(x, y)) - threshold).max(0.0);
+                sum += light;
+                sx += light * (f64::from(x) + 0.5);
+                sy += light * (f64::from(y) + 0.5);
+            }
+        }
+        [sx / sum, sy / sum]
+    }
+
+    #[test]
+    fn a_binned_camera_sees_the_light_where_the_full_one_does_scaled() {
+        let params = MichelsonParams::default();
+        let offsets = [900, -700, -1200, 500];
+        let full = Michelson::new(params.clone(), offsets).unwrap();
+        let binned = Michelson::new(params.binned(160, 90).unwrap(), offsets).unwrap();
+        let shafts = [0, 0, 0, 0];
+        let small = binned.render(&shafts, 0);
+        assert_eq!((small.width(), small.height()), (160, 90));
+        let [fx, fy] = centroid(&full.render(&shafts, 0));
+        let [bx, by] = centroid(&small);
+        assert!(
+            (fx / 12.0 - bx).abs() < 1.0 && (fy / 12.0 - by).abs() < 1.0,
+            "full {fx:.1},{fy:.1} binned {bx:.1},{by:.1}"
+        );
+        let truth = binned.truth(&shafts);
+        assert!((truth.error_px * 12.0 - full.truth(&shafts).error_px).abs() < 1e-6);
+    }
+
+    #[test]
+    fn binning_is_refused_where_it_would_not_be_faithful() {
+        let params = MichelsonParams::default();
+        assert!(params.binned(160, 120).is_none(), "another aspect");
+        assert!(params.binned(1920, 1080).is_none(), "not smaller");
+        assert!(params.binned(32, 18).is_none(), "fringes under two pixels");
+        let mut textured = params.clone();
+        textured.realism.pointing_jitter_px = 2.0;
+        assert!(textured.binned(160, 90).is_none(), "realism layers on");
+    }
 }

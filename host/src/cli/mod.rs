@@ -1,11 +1,11 @@
 //! The command line: one subcommand per job, each in its own module.
 
-mod axes;
+pub mod axes;
 mod beams;
 mod bench;
 mod calibrate;
-mod config;
-mod connect;
+pub mod config;
+pub mod connect;
 mod demo;
 mod flash;
 mod monitor;

@@ -189,7 +189,9 @@ impl PeerCore {
                 Some(deadline)
                     if self.controller.is_moving() && self.clock.mode() == TimeMode::Instant =>
                 {
-                    self.clock.jump_to(deadline)
+                    // Straight to the move's last step: one poll takes all its steps.
+                    let end = self.controller.motion_end_us().unwrap_or(deadline);
+                    self.clock.jump_to(deadline.max(end))
                 }
                 _ => return out,
             }
@@ -228,5 +230,87 @@ impl PeerCore {
         {
             tracing::error!(%error, path = %file.path().display(), "cannot write peer state file");
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use optalign_protocol::{AxisValue, Reply};
+
+    use super::*;
+
+    /// A peer on instant time with backlash and lost steps, so the step order matters.
+    fn core() -> (PeerCore, Session) {
+        let options = PeerOptions {
+            mechanics: MechanicsOptions {
+                backlash: 40,
+                lost_step_probability: 0.01,
+                seed: 7,
+                ..MechanicsOptions::default()
+            },
+            time: TimeMode::Instant,
+            ..PeerOptions::default()
+        };
+        let mut core = PeerCore::new(&options).unwrap();
+        let session = core.serial_session();
+        (core, session)
+    }
+
+    fn start_move(core: &mut PeerCore, session: &mut Session, id: u32, targets: [i32; 4]) {
+        let request = Request {
+            id: RequestId(id),
+            command: Command::MoveTo {
+                targets: (0..4u8)
+                    .map(|axis| AxisValue {
+                        axis,
+                        steps: targets[usize::from(axis)],
+                    })
+                    .collect(),
+            },
+        };
+        let replies = core.handle(session, &request);
+        assert!(
+            replies.iter().any(|m| matches!(
+                m,
+                PeerMessage::Reply {
+                    reply: Reply::MoveStarted { .. },
+                    ..
+                }
+            )),
+            "{replies:?}"
+        );
+    }
+
+    #[test]
+    fn settling_in_one_jump_makes_the_steps_of_polling_at_every_step() {
+        let (mut jumping, mut jumping_session) = core();
+        let (mut stepping, mut stepping_session) = core();
+        let moves = [
+            [3000, -2500, 40, -7],
+            [-1200, 800, -3000, 2500],
+            [0, 0, 0, 0],
+        ];
+        for (id, targets) in (1..).zip(moves) {
+            start_move(&mut jumping, &mut jumping_session, id, targets);
+            let jumped = jumping.settle();
+            start_move(&mut stepping, &mut stepping_session, id, targets);
+            let mut stepped = Vec::new();
+            loop {
+                let (mut notes, next) = stepping.poll();
+                stepped.append(&mut notes);
+                match next {
+                    Some(deadline) if stepping.is_moving() => stepping.clock.jump_to(deadline),
+                    _ => break,
+                }
+            }
+            assert_eq!(jumped, stepped);
+            assert_eq!(jumping.shaft_positions(), stepping.shaft_positions());
+            assert_eq!(jumping.clock.now_us(), stepping.clock.now_us());
+        }
+        assert_ne!(
+            jumping.shaft_positions(),
+            vec![0; 4],
+            "lost steps and backlash show"
+        );
     }
 }

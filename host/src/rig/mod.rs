@@ -4,6 +4,7 @@
 //! real bench through the same trait, so every policy works unchanged on both.
 
 mod controllers;
+mod downsample;
 mod motors;
 mod score;
 mod sim;

@@ -202,3 +202,13 @@ impl SimMotors {
         }
     }
 }
+
+impl Drop for SimMotors {
+    /// A peer's accept loop holds the peer, so it would outlive the rig on a runtime that
+    /// goes on (a Python environment resetting, a bench worker): stop it here.
+    fn drop(&mut self) {
+        if let Self::Peer { peer, .. } = self {
+            peer.shutdown();
+        }
+    }
+}

@@ -1,6 +1,8 @@
 //! The simulated rig: a scene rendered from the true shaft positions of simulated mounts
 //! driven by the simulated firmware, and for the relay a simulated camera mover that places
-//! the camera with a small random error at each station.
+//! the camera with a small random error at each station. Frames can be asked for at a
+//! smaller size (reinforcement learning wants small observations): the Michelson renders
+//! straight onto a binned camera when its scene allows, everything else is area-averaged.
 
 use async_trait::async_trait;
 use optalign_optics::seeds::{cavity_offsets, michelson_offsets, relay_offsets};
@@ -10,6 +12,7 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
 use super::controllers::ControllerView;
+use super::downsample::area_average;
 use super::motors::{MotorPath, SimMotors};
 use super::score::{CameraView, RelayStateScore, Score};
 use super::{Executed, Rig};
@@ -20,7 +23,8 @@ use crate::task::relay::{RelayAction, aligned_mirrors, axis_of};
 use crate::task::{Action, TaskKind};
 
 enum Scene {
-    Michelson(Michelson),
+    /// The scene, and the same scene on a binned camera when frames are asked for smaller.
+    Michelson(Michelson, Option<Box<Michelson>>),
     Cavity(Cavity),
     Relay {
         relay: Box<Relay>,
@@ -39,6 +43,8 @@ pub struct SimRig {
     frames: u64,
     timing: TimingParams,
     centred_tolerance_px: f64,
+    /// The size frames are delivered at, when smaller than the scene's camera.
+    frame_size: Option<[u32; 2]>,
 }
 
 impl SimRig {
@@ -50,10 +56,29 @@ impl SimRig {
         seed: u64,
         path: MotorPath,
     ) -> anyhow::Result<Self> {
+        Self::with_frame_size(task, scenario, seed, path, None).await
+    }
+
+    /// Like [`Self::new`], with frames delivered at `frame_size` (width, height), each side
+    /// at most the scene camera's.
+    pub async fn with_frame_size(
+        task: TaskKind,
+        scenario: &ScenarioFile,
+        seed: u64,
+        path: MotorPath,
+        frame_size: Option<[u32; 2]>,
+    ) -> anyhow::Result<Self> {
+        Self::check_frame_size(task, scenario, frame_size)?;
+        let camera = scenario.geometry(task).image_px.unwrap_or_default();
+        let frame_size = frame_size.filter(|&size| size != camera);
         let scene = match task {
             TaskKind::Michelson => {
                 let offsets = michelson_offsets(&scenario.michelson, seed);
-                Scene::Michelson(Michelson::new(scenario.michelson.clone(), offsets)?)
+                let binned = frame_size
+                    .and_then(|[width, height]| scenario.michelson.binned(width, height))
+                    .map(|params| Michelson::new(params, offsets).map(Box::new))
+                    .transpose()?;
+                Scene::Michelson(Michelson::new(scenario.michelson.clone(), offsets)?, binned)
             }
             TaskKind::Cavity => {
                 let offsets = cavity_offsets(&scenario.cavity, seed);
@@ -80,17 +105,42 @@ impl SimRig {
             frames: 0,
             timing: scenario.timing.clone(),
             centred_tolerance_px: scenario.tasks.relay.centred_tolerance_px,
+            frame_size,
         })
     }
 
-    fn render(&mut self) -> Frame {
+    /// Checks that frames of `frame_size` (width, height) can be had from `task`'s camera:
+    /// each side from 1 up to the camera's.
+    pub fn check_frame_size(
+        task: TaskKind,
+        scenario: &ScenarioFile,
+        frame_size: Option<[u32; 2]>,
+    ) -> anyhow::Result<()> {
+        let camera = scenario.geometry(task).image_px.unwrap_or_default();
+        if let Some([width, height]) = frame_size {
+            anyhow::ensure!(
+                (1..=camera[0]).contains(&width) && (1..=camera[1]).contains(&height),
+                "a frame size of ({width}, {height}) does not fit the {task} camera of {}x{}: each side must be 1 up to the camera's",
+                camera[0],
+                camera[1]
+            );
+        }
+        Ok(())
+    }
+
+    fn render(&mut self) -> anyhow::Result<Frame> {
         let shafts = self.motors.shafts();
         let index = self.frames;
         self.frames += 1;
-        match &self.scene {
-            Scene::Michelson(scene) => scene.render(&shafts, index),
+        let frame = match &self.scene {
+            Scene::Michelson(_, Some(binned)) => return Ok(binned.render(&shafts, index)),
+            Scene::Michelson(scene, None) => scene.render(&shafts, index),
             Scene::Cavity(scene) => scene.render(&shafts, index),
             Scene::Relay { relay, pose, .. } => relay.render(&shafts, pose, index),
+        };
+        match self.frame_size {
+            Some([width, height]) => area_average(&frame, width, height),
+            None => Ok(frame),
         }
     }
 
@@ -142,7 +192,7 @@ impl Rig for SimRig {
     }
 
     async fn initial_image(&mut self) -> anyhow::Result<Frame> {
-        Ok(self.render())
+        self.render()
     }
 
     async fn execute(&mut self, action: &Action) -> anyhow::Result<Executed> {
@@ -187,7 +237,7 @@ impl Rig for SimRig {
             Action::Relay(RelayAction::Done) => (0.0, 0.0),
         };
         Ok(Executed {
-            image: self.render(),
+            image: self.render()?,
             motor_time_s,
             camera_time_s: camera_move_s + self.timing.frame_s,
         })
@@ -205,7 +255,7 @@ impl Rig for SimRig {
     fn score(&self) -> Score {
         let shafts = self.motors.shafts();
         match &self.scene {
-            Scene::Michelson(scene) => {
+            Scene::Michelson(scene, _) => {
                 let truth = scene.truth(&shafts);
                 Score::Michelson(MichelsonScore {
                     error_px: truth.error_px,

@@ -11,7 +11,7 @@ use std::time::Instant;
 
 use anyhow::Context;
 
-pub use summary::{RunSummary, summarize};
+pub use summary::{RunSummary, is_success, summarize};
 pub use transcript::{StepRecord, Transcript};
 
 use crate::monitor::RunMonitor;
@@ -48,14 +48,29 @@ impl Default for RunOptions {
 }
 
 /// The task's bookkeeping during a run: validates actions before they reach the rig.
-struct TaskState {
+pub struct TaskState {
     task: TaskKind,
     limits: TaskLimits,
     relay: RelayState,
 }
 
 impl TaskState {
-    fn check(&self, action: &Action) -> Result<(), String> {
+    /// The state at the start of a run of `task` under `limits`.
+    pub fn new(task: TaskKind, limits: &TaskLimits) -> Self {
+        Self {
+            task,
+            limits: limits.clone(),
+            relay: RelayState::default(),
+        }
+    }
+
+    /// The relay's cumulative commands and camera station (default for the other tasks).
+    pub fn relay(&self) -> &RelayState {
+        &self.relay
+    }
+
+    /// Checks an action against the task and its bounds; the reason says what was wrong.
+    pub fn check(&self, action: &Action) -> Result<(), String> {
         if action.task() != self.task {
             return Err(format!(
                 "rejected: this is the {} task, not {}",
@@ -70,7 +85,8 @@ impl TaskState {
         }
     }
 
-    fn apply(&mut self, action: &Action) {
+    /// Records an action that passed [`Self::check`].
+    pub fn apply(&mut self, action: &Action) {
         if let Action::Relay(relay) = action {
             self.relay.apply(relay);
         }
@@ -87,11 +103,7 @@ pub async fn run_episode(
 ) -> anyhow::Result<RunSummary> {
     let task = rig.task();
     let budget = limits.budget(task);
-    let mut state = TaskState {
-        task,
-        limits: limits.clone(),
-        relay: RelayState::default(),
-    };
+    let mut state = TaskState::new(task, limits);
     let monitor = options.monitor.as_ref();
     let mut transcript = match &options.out_dir {
         Some(dir) => Some(Transcript::create(

@@ -49,6 +49,15 @@ pub fn best_error(scores: &[Score]) -> Option<f64> {
         .min_by(f64::total_cmp)
 }
 
+/// Whether a state counts as aligned under the task's success rule.
+pub fn is_success(score: &Score, limits: &TaskLimits) -> bool {
+    match score {
+        Score::Michelson(score) => score.error_px <= limits.michelson.success_error_px,
+        Score::Cavity(score) => score.success,
+        Score::Relay(score) => score.through_all_mirrors && score.aligned[3],
+    }
+}
+
 /// Builds the summary from the per-evaluation scores (index 0 = start) and the steps.
 #[allow(clippy::too_many_arguments)]
 pub fn summarize(
@@ -66,12 +75,7 @@ pub fn summarize(
         .map(|n| best_error(&scores[..n]))
         .collect();
     let last = scores.last();
-    let success = match last {
-        Some(Score::Michelson(score)) => score.error_px <= limits.michelson.success_error_px,
-        Some(Score::Cavity(score)) => score.success,
-        Some(Score::Relay(score)) => score.through_all_mirrors && score.aligned[3],
-        None => false,
-    };
+    let success = last.is_some_and(|score| is_success(score, limits));
     let relay_history: Vec<[bool; 4]> = scores
         .iter()
         .filter_map(|score| match score {

@@ -111,6 +111,40 @@ impl MichelsonParams {
         self.realism.validate("michelson.realism")
     }
 
+    /// The same scene seen by a camera of `width` x `height` coarser pixels covering the same
+    /// field: every length in pixels shrinks by the binning factor and the read noise by it
+    /// too (the noise of a block of pixels averaged). `None` when the realism layers are on
+    /// (their pixel lengths are not rescaled), the aspect differs by more than a pixel, the
+    /// camera would not be smaller, or the rescaled scene would be invalid (fringes finer
+    /// than two pixels).
+    pub fn binned(&self, width: u32, height: u32) -> Option<Self> {
+        if self.realism != RealismParams::default()
+            || width >= self.width_px
+            || height >= self.height_px
+        {
+            return None;
+        }
+        let scale = f64::from(width) / f64::from(self.width_px);
+        if (f64::from(self.height_px) * scale - f64::from(height)).abs() > 1.0 {
+            return None;
+        }
+        let shrink = |m: [[f64; 2]; 2]| m.map(|row| row.map(|v| v * scale));
+        let binned = Self {
+            width_px: width,
+            height_px: height,
+            mirror_1_sensitivity_px_per_step: shrink(self.mirror_1_sensitivity_px_per_step),
+            mirror_2_sensitivity_px_per_step: shrink(self.mirror_2_sensitivity_px_per_step),
+            beam_radius_px: self.beam_radius_px.map(|r| r * scale),
+            fringe_period_px: self.fringe_period_px * scale,
+            noise: NoiseParams {
+                std: self.noise.std * scale,
+                ..self.noise.clone()
+            },
+            ..self.clone()
+        };
+        binned.validate().is_ok().then_some(binned)
+    }
+
     /// The sensitivity matrix of mirror `k` (0 or 1).
     pub(crate) fn sensitivity(&self, k: usize) -> &[[f64; 2]; 2] {
         if k == 0 {
