@@ -85,7 +85,7 @@ pub fn run_json(
         jobs: 1,
         motors: parse_motors(motors)?,
         save_frames: out.is_some(),
-        vlm: None,
+        ..MatrixOptions::default()
     };
     let runtime = runtime::single_threaded()?;
     let record = py
