@@ -106,11 +106,21 @@ async fn run_into(
     seed: u64,
     out_dir: Option<std::path::PathBuf>,
 ) -> optalign::run::RunSummary {
+    run_on(task, seed, ScenarioFile::default(), out_dir).await
+}
+
+/// One run of the vision agent on `scenario`, through the bench's own runner.
+async fn run_on(
+    task: TaskKind,
+    seed: u64,
+    scenario: ScenarioFile,
+    out_dir: Option<std::path::PathBuf>,
+) -> optalign::run::RunSummary {
     let spec = RunSpec {
         task,
         policy: "vision".into(),
         seed,
-        scenario: Arc::new(ScenarioFile::default()),
+        scenario: Arc::new(scenario),
         setting: None,
         out_dir,
     };
@@ -173,4 +183,24 @@ async fn the_vision_agent_aligns_the_cavity_and_its_claims_match_the_truth() {
 async fn the_vision_agent_aligns_the_relay() {
     let summary = run(TaskKind::Relay, 9).await;
     assert!(summary.success && summary.declared_done, "{summary:?}");
+}
+
+#[tokio::test]
+async fn the_vision_agent_aligns_every_task_on_a_1280_by_720_camera() {
+    // Nothing about the default cameras (1920 x 1080, 1280 x 1024, 640 x 480) is built in:
+    // the same agent learns this camera's scales from its images.
+    let mut scenario = ScenarioFile::default();
+    (scenario.michelson.width_px, scenario.michelson.height_px) = (1280, 720);
+    (scenario.cavity.width_px, scenario.cavity.height_px) = (1280, 720);
+    (
+        scenario.relay.camera.width_px,
+        scenario.relay.camera.height_px,
+    ) = (1280, 720);
+    for task in [TaskKind::Michelson, TaskKind::Cavity, TaskKind::Relay] {
+        let summary = run_on(task, 4, scenario.clone(), None).await;
+        assert!(
+            summary.success && summary.declared_done,
+            "{task}: {summary:?}"
+        );
+    }
 }
