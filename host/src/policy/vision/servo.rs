@@ -240,21 +240,28 @@ impl Servo {
                 }
                 .solve(target)?;
                 let length = step[0].hypot(step[1]);
-                if length < self.bounds[0] && !best.spot.whole {
-                    // A cut spot the response says is where it should be: the response is
-                    // wrong. Probe again from here.
+                let scale = (self.radius / length.max(1e-9)).min(1.0);
+                let proposal = [
+                    best.tilt[0] + step[0] * scale,
+                    best.tilt[1] + step[1] * scale,
+                ];
+                // The tilt just looked at, to within a step, where the caller found the spot
+                // off the target: the response cannot get it any closer.
+                let standing_still = self.last.is_some_and(|(tilt, _)| {
+                    (tilt[0] - proposal[0]).abs() < 1.0 && (tilt[1] - proposal[1]).abs() < 1.0
+                });
+                if (length < self.bounds[0] && !best.spot.whole) || standing_still {
+                    // A spot the response says is where it should be, when it is cut or was
+                    // just seen off the target: the response is wrong. Probe again from the
+                    // best tilt.
                     self.gain = None;
                     self.rough = false;
                     self.columns = [None; 2];
                     self.pending = Pending::Nothing;
                     return self.next(target);
                 }
-                let scale = (self.radius / length.max(1e-9)).min(1.0);
                 self.pending = Pending::Step;
-                Some([
-                    best.tilt[0] + step[0] * scale,
-                    best.tilt[1] + step[1] * scale,
-                ])
+                Some(proposal)
             }
         }
     }
@@ -344,6 +351,43 @@ mod tests {
             tilt = servo.next(target).expect("the spot shows at the start");
         }
         panic!("not centred in 30 steps: {:?}", servo.best());
+    }
+
+    #[test]
+    fn never_asks_again_for_the_tilt_it_just_looked_at() {
+        // The beam merged with a stationary stray spot that carries most of the light: the
+        // detection moves a fifth as far as the beam and never reaches the target. Commands
+        // are whole steps, as on a controller; a proposal within a step of the tilt just
+        // seen would be an action that changes nothing, again and again.
+        let beam = Affine {
+            offset: [560.0, 120.0],
+            gain: [[0.03, 0.0], [0.0, 0.03]],
+        };
+        let stray = [520.0, 110.0];
+        let mut servo = Servo::new(1875.0, [50.0, 20_000.0], None);
+        let target = [320.0, 240.0];
+        let mut tilt = [0.0, 0.0];
+        for _ in 0..60 {
+            let beam_at = beam.predict(tilt);
+            let seen = Some(Spot {
+                at: [
+                    0.8 * stray[0] + 0.2 * beam_at[0],
+                    0.8 * stray[1] + 0.2 * beam_at[1],
+                ],
+                whole: true,
+                signal: 100.0,
+            });
+            servo.observe(tilt, seen, target, 480.0);
+            let Some(next) = servo.next(target) else {
+                break;
+            };
+            let next = next.map(f64::round);
+            assert!(
+                (next[0] - tilt[0]).abs() >= 1.0 || (next[1] - tilt[1]).abs() >= 1.0,
+                "asked for {next:?} again"
+            );
+            tilt = next;
+        }
     }
 
     #[test]
