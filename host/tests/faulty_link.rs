@@ -16,6 +16,8 @@ use std::net::SocketAddr;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+
 use fault_proxy::{FaultProxy, FaultRates};
 use optalign::link::{Client, ClientError, ClientOptions, Event};
 use optalign::peer::{PeerOptions, SimPeer, TimeMode};
@@ -354,4 +356,80 @@ async fn moves_through_a_faulty_link_happen_exactly_once_and_positions_agree() {
         total.completed + total.reconciled_executed + total.reconciled_not_executed,
         3 * moves
     );
+}
+
+/// Relays connections to `upstream`; on connection number `victim` it drops the
+/// controller's frame number `dropped` (counting from 0), and passes everything else.
+async fn relay_dropping_one_reply(
+    upstream: SocketAddr,
+    victim: usize,
+    dropped: usize,
+) -> SocketAddr {
+    let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let address = listener.local_addr().unwrap();
+    tokio::spawn(async move {
+        for number in 0.. {
+            let Ok((client, _)) = listener.accept().await else {
+                return;
+            };
+            let server = tokio::net::TcpStream::connect(upstream).await.unwrap();
+            let (mut client_read, mut client_write) = client.into_split();
+            let (mut server_read, mut server_write) = server.into_split();
+            tokio::spawn(async move {
+                let _ = tokio::io::copy(&mut client_read, &mut server_write).await;
+            });
+            tokio::spawn(async move {
+                let mut frames = 0;
+                let mut byte = [0u8; 1];
+                while let Ok(1) = server_read.read(&mut byte).await {
+                    let keep = number != victim || frames != dropped;
+                    frames += usize::from(byte[0] == 0);
+                    if keep && client_write.write_all(&byte).await.is_err() {
+                        return;
+                    }
+                }
+            });
+        }
+    });
+    address
+}
+
+/// A reconnection whose authentication reply is lost must not leave the client on the
+/// unauthenticated connection: its next attempt connects afresh and the move runs once.
+#[tokio::test]
+async fn a_lost_authentication_reply_does_not_leave_the_client_unauthenticated() {
+    let peer = SimPeer::start(&PeerOptions {
+        axes: 1,
+        key: Some(KEY.into()),
+        time: TimeMode::Instant,
+        ..PeerOptions::default()
+    })
+    .unwrap();
+    let address = peer
+        .listen_tcp("127.0.0.1:0".parse().unwrap())
+        .await
+        .unwrap();
+    // Connection 1's frame 1 is the answer to its AuthChallenge (frame 0 answers Hello).
+    let relay = relay_dropping_one_reply(address, 1, 1).await;
+    let client = Client::connect(
+        format!("tcp://{relay}").parse().unwrap(),
+        ClientOptions {
+            key: Some(auth::derive_key(KEY)),
+            request_timeout: Duration::from_millis(300),
+            ..ClientOptions::default()
+        },
+    )
+    .await
+    .unwrap();
+    client.disconnect().await;
+    let report = client
+        .move_by(&[AxisValue {
+            axis: 0,
+            steps: 120,
+        }])
+        .await
+        .expect("the move runs on a fresh, authenticated connection");
+    assert_eq!(report.outcome, MoveOutcome::Completed);
+    assert_eq!(report.positions, [120]);
+    assert_eq!(peer.shaft_positions(), [120]);
 }
