@@ -24,8 +24,8 @@ use optalign::peer::{PeerOptions, SimPeer, TimeMode};
 use optalign_firmware::Session;
 use optalign_firmware::sim::SimRng;
 use optalign_protocol::{
-    AxisConfig, AxisValue, Command, MoveOutcome, MoveResult, Notification, PeerMessage, Reply,
-    Request, RequestId, auth,
+    AxisConfig, AxisValue, Command, ErrorCode, MoveOutcome, MoveResult, Notification, PeerMessage,
+    Reply, Request, RequestId, auth,
 };
 
 const KEY: &str = "faulty-link-test-key";
@@ -152,6 +152,8 @@ fn random_move(rng: &mut SimRng, before: &[i32]) -> (Command, Vec<i32>) {
 
 /// The client's end of one move, as the host would settle it.
 enum Settled {
+    /// The controller refused the move (`busy`).
+    Refused,
     /// The client reported the move completed.
     Completed(Vec<i32>),
     /// The client could not tell; it asked `MoveResult` through the link afterwards.
@@ -174,6 +176,7 @@ async fn reconcile(client: &Client, id: RequestId) -> MoveResult {
 #[derive(Default, Debug)]
 struct Figures {
     completed: usize,
+    refused: usize,
     reconciled_executed: usize,
     reconciled_not_executed: usize,
 }
@@ -250,6 +253,12 @@ async fn campaign(seed: u64, attempts: u32, moves: usize) -> (Figures, String) {
                 eprintln!("seed {seed:#x}, move {number}: {error}");
                 Settled::Reconciled(reconcile(&client, id).await)
             }
+            // A reconnected client can find its old connection still holding control
+            // for a moment: the refusal is honest, and the move must not have run.
+            Err(error) if error.code() == Some(ErrorCode::BUSY) => {
+                eprintln!("seed {seed:#x}, move {number}: {error}");
+                Settled::Refused
+            }
             Err(error) => panic!("seed {seed:#x}, move {number}: {command:?} failed: {error}"),
         };
         truth.wait_idle().await;
@@ -257,6 +266,19 @@ async fn campaign(seed: u64, attempts: u32, moves: usize) -> (Figures, String) {
         let true_result = truth.move_result(id);
         let ran = executions.lock().unwrap().get(&id.0).copied();
         match settled {
+            Settled::Refused => {
+                figures.refused += 1;
+                assert_eq!(
+                    true_result,
+                    MoveResult::Unknown,
+                    "seed {seed:#x}, move {number}"
+                );
+                assert_eq!(
+                    after, before,
+                    "seed {seed:#x}, move {number}: nothing moved"
+                );
+                assert_eq!(ran, None, "seed {seed:#x}, move {number}: {id:?} never ran");
+            }
             Settled::Completed(positions) => {
                 figures.completed += 1;
                 assert_eq!(
@@ -344,6 +366,7 @@ async fn moves_through_a_faulty_link_happen_exactly_once_and_positions_agree() {
         let (figures, tally) = campaign(seed, attempts, moves).await;
         println!("seed {seed:#x}, {attempts} attempts: {figures:?}; {tally}");
         total.completed += figures.completed;
+        total.refused += figures.refused;
         total.reconciled_executed += figures.reconciled_executed;
         total.reconciled_not_executed += figures.reconciled_not_executed;
     }
@@ -353,7 +376,7 @@ async fn moves_through_a_faulty_link_happen_exactly_once_and_positions_agree() {
         "no move needed reconciling: the campaign did not reach that path"
     );
     assert_eq!(
-        total.completed + total.reconciled_executed + total.reconciled_not_executed,
+        total.completed + total.refused + total.reconciled_executed + total.reconciled_not_executed,
         3 * moves
     );
 }
