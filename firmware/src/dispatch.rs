@@ -172,7 +172,7 @@ impl<S: Storage> Controller<S> {
                 self.key_epoch = self.key_epoch.wrapping_add(1);
                 self.save("access key")
             }
-            Command::AuthChallenge => self.challenge(session, rng),
+            Command::AuthChallenge => self.challenge(session, id, rng),
             Command::AuthResponse { tag } => self.authenticate(session, tag),
             Command::ClearEmergency => {
                 self.clear_emergency();
@@ -202,17 +202,26 @@ impl<S: Storage> Controller<S> {
         }))
     }
 
+    /// A fresh nonce, except for a repeat of the request that drew the outstanding one (a
+    /// retransmission or a duplicated frame), which gets that same nonce: otherwise the
+    /// client would answer the first nonce while the controller expects the second.
     fn challenge(
         &self,
         session: &mut Session,
+        id: RequestId,
         rng: &mut dyn RngSource,
     ) -> Result<Reply, ErrorReply> {
         if self.key.is_none() {
             return Err(no_key());
         }
+        if let Some((drawn_for, nonce)) = session.nonce
+            && drawn_for == id
+        {
+            return Ok(Reply::Challenge { nonce });
+        }
         let mut nonce = [0u8; NONCE_LEN];
         rng.fill(&mut nonce);
-        session.nonce = Some(nonce);
+        session.nonce = Some((id, nonce));
         Ok(Reply::Challenge { nonce })
     }
 
@@ -225,7 +234,7 @@ impl<S: Storage> Controller<S> {
             return Err(no_key());
         };
         // A nonce answers one response, right or wrong.
-        let Some(nonce) = session.nonce.take() else {
+        let Some((_, nonce)) = session.nonce.take() else {
             return Err(error_reply!(
                 ErrorCode::AUTH_FAILED,
                 "no challenge outstanding: send AuthChallenge first"

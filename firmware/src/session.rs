@@ -1,5 +1,6 @@
 //! One connection's state: link kind, handshake, authentication and the control claim.
 
+use optalign_protocol::RequestId;
 use optalign_protocol::limits::NONCE_LEN;
 
 /// The kind of link a session runs on.
@@ -19,8 +20,9 @@ pub struct Session {
     pub(crate) handshaken: bool,
     /// The key generation this session authenticated against (a new key revokes it).
     pub(crate) authenticated: Option<u32>,
-    /// The outstanding challenge; used up by the next response.
-    pub(crate) nonce: Option<[u8; NONCE_LEN]>,
+    /// The outstanding challenge and the request that asked for it; used up by the next
+    /// response.
+    pub(crate) nonce: Option<(RequestId, [u8; NONCE_LEN])>,
     /// The control claim this session was given (see [`crate::Controller::end_session`]).
     pub(crate) claim: Option<u32>,
 }

@@ -197,6 +197,34 @@ fn a_nonce_answers_one_response() {
 }
 
 #[test]
+fn a_repeated_challenge_request_gets_the_same_nonce() {
+    let mut rig = Rig::new(1, 0, plain());
+    rig.ok(Command::SetKey { key: KEY });
+    let mut net = network(&mut rig);
+    let challenge = |rig: &mut Rig, net: &mut Session, id| match rig.send_on(
+        net,
+        RequestId(id),
+        Command::AuthChallenge,
+    ) {
+        Reply::Challenge { nonce } => nonce,
+        other => panic!("no challenge: {other:?}"),
+    };
+    // A duplicated or retransmitted AuthChallenge: the client answers the first reply.
+    let first = challenge(&mut rig, &mut net, 2);
+    assert_eq!(challenge(&mut rig, &mut net, 2), first);
+    // Another request is another challenge.
+    let fresh = challenge(&mut rig, &mut net, 3);
+    assert_ne!(fresh, first);
+    let tag = challenge_tag(&KEY, &fresh);
+    assert_eq!(
+        rig.send_on(&mut net, RequestId(4), Command::AuthResponse { tag }),
+        Reply::Ok
+    );
+    // Once answered, even the same request id draws a new nonce.
+    assert_ne!(challenge(&mut rig, &mut net, 3), fresh);
+}
+
+#[test]
 fn a_retransmitted_move_runs_once_even_across_sessions() {
     let mut rig = Rig::new(1, 0, plain());
     rig.ok(Command::SetKey { key: KEY });

@@ -3,6 +3,7 @@
 mod backlash;
 mod control;
 mod dispatch;
+mod hostile;
 mod motion;
 mod persistence;
 mod rig;

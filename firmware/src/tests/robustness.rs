@@ -26,7 +26,7 @@ fn axis_values() -> impl Strategy<Value = heapless::Vec<AxisValue, MAX_AXES>> {
         .prop_map(|(values, len)| values.into_iter().take(len).collect())
 }
 
-fn axis_config() -> impl Strategy<Value = AxisConfig> {
+pub(super) fn axis_config() -> impl Strategy<Value = AxisConfig> {
     (
         (
             prop_oneof![1u32..20_000, any::<u32>()],
@@ -76,7 +76,7 @@ fn axis_config() -> impl Strategy<Value = AxisConfig> {
         )
 }
 
-fn command() -> impl Strategy<Value = Command> {
+pub(super) fn command() -> impl Strategy<Value = Command> {
     prop_oneof![
         1 => prop_oneof![4 => Just(PROTOCOL_VERSION), 1 => any::<u16>()]
             .prop_map(|protocol_version| Command::Hello { protocol_version }),

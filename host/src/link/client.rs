@@ -392,6 +392,17 @@ impl Client {
             self.events.clone(),
         ));
         *slot = Some(Connection { writer, reader });
+        let established = self.establish(slot).await;
+        if established.is_err() {
+            // A connection whose handshake or authentication failed must not be reused:
+            // the next attempt would send on a session without access.
+            *slot = None;
+        }
+        established
+    }
+
+    /// Handshake and (with a key, on network links) authentication on a new connection.
+    async fn establish(&self, slot: &mut Option<Connection>) -> Result<(), ClientError> {
         let identity = self.handshake(slot).await?;
         *self.identity.lock().unwrap_or_else(|e| e.into_inner()) = Some(identity);
         if let (Some(key), false) = (self.options.key, self.endpoint.is_serial()) {
