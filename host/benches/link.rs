@@ -12,11 +12,9 @@ const TAIL_SAMPLES: usize = 20_000;
 
 fn connect(runtime: &tokio::runtime::Runtime) -> (std::sync::Arc<SimPeer>, Client) {
     runtime.block_on(async {
-        let peer = SimPeer::start(&PeerOptions::default()).expect("peer starts");
-        let address = peer
-            .listen_tcp("127.0.0.1:0".parse().unwrap())
+        let (peer, address) = SimPeer::start_on_loopback(&PeerOptions::default())
             .await
-            .expect("peer listens");
+            .expect("peer starts on loopback");
         let endpoint = Endpoint::Tcp {
             host: address.ip().to_string(),
             port: address.port(),

@@ -182,18 +182,15 @@ struct Figures {
 }
 
 async fn campaign(seed: u64, attempts: u32, moves: usize) -> (Figures, String) {
-    let peer = SimPeer::start(&PeerOptions {
+    let (peer, address) = SimPeer::start_on_loopback(&PeerOptions {
         axes: AXES,
         key: Some(KEY.into()),
         time: TimeMode::Instant,
         max_clients: 8,
         ..PeerOptions::default()
     })
+    .await
     .unwrap();
-    let address = peer
-        .listen_tcp("127.0.0.1:0".parse().unwrap())
-        .await
-        .unwrap();
     let mut truth = Truth::new(peer.clone());
     // Fast axes keep the waits for lost notifications short.
     for axis in 0..AXES {
@@ -421,17 +418,14 @@ async fn relay_dropping_one_reply(
 /// unauthenticated connection: its next attempt connects afresh and the move runs once.
 #[tokio::test]
 async fn a_lost_authentication_reply_does_not_leave_the_client_unauthenticated() {
-    let peer = SimPeer::start(&PeerOptions {
+    let (peer, address) = SimPeer::start_on_loopback(&PeerOptions {
         axes: 1,
         key: Some(KEY.into()),
         time: TimeMode::Instant,
         ..PeerOptions::default()
     })
+    .await
     .unwrap();
-    let address = peer
-        .listen_tcp("127.0.0.1:0".parse().unwrap())
-        .await
-        .unwrap();
     // Connection 1's frame 1 is the answer to its AuthChallenge (frame 0 answers Hello).
     let relay = relay_dropping_one_reply(address, 1, 1).await;
     let client = Client::connect(

@@ -30,11 +30,7 @@ async fn peer(axes: u8, backlash: u32) -> (Arc<SimPeer>, String) {
         time: TimeMode::Instant,
         ..PeerOptions::default()
     };
-    let peer = SimPeer::start(&options).unwrap();
-    let address = peer
-        .listen_tcp("127.0.0.1:0".parse().unwrap())
-        .await
-        .unwrap();
+    let (peer, address) = SimPeer::start_on_loopback(&options).await.unwrap();
     (peer, format!("tcp://{address}"))
 }
 

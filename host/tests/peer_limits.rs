@@ -16,18 +16,15 @@ use tokio::net::TcpSocket;
 const KEY: &str = "limits-test-key";
 
 async fn peer(max_clients: usize) -> (Arc<SimPeer>, Endpoint) {
-    let peer = SimPeer::start(&PeerOptions {
+    let (peer, address) = SimPeer::start_on_loopback(&PeerOptions {
         axes: 2,
         key: Some(KEY.into()),
         time: TimeMode::Instant,
         max_clients,
         ..PeerOptions::default()
     })
+    .await
     .unwrap();
-    let address = peer
-        .listen_tcp("127.0.0.1:0".parse().unwrap())
-        .await
-        .unwrap();
     (peer, format!("tcp://{address}").parse().unwrap())
 }
 

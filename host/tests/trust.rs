@@ -42,18 +42,15 @@ fn text(output: &Output) -> String {
 
 /// A simulated peer with the test key on a loopback port.
 async fn peer(time: TimeMode, state_file: Option<&Path>) -> (Arc<SimPeer>, SocketAddr) {
-    let peer = SimPeer::start(&PeerOptions {
+    let (peer, address) = SimPeer::start_on_loopback(&PeerOptions {
         axes: 2,
         key: Some(KEY.into()),
         time,
         state_file: state_file.map(Path::to_path_buf),
         ..PeerOptions::default()
     })
+    .await
     .unwrap();
-    let address = peer
-        .listen_tcp("127.0.0.1:0".parse().unwrap())
-        .await
-        .unwrap();
     (peer, address)
 }
 

@@ -97,6 +97,18 @@ impl SimPeer {
         self.core().shaft_positions()
     }
 
+    /// A peer with `options` accepting network clients on a free loopback port, and that
+    /// port's address (for simulated rigs and tests).
+    pub async fn start_on_loopback(
+        options: &PeerOptions,
+    ) -> anyhow::Result<(Arc<Self>, SocketAddr)> {
+        let peer = Self::start(options)?;
+        let address = peer
+            .listen_tcp(SocketAddr::from(([127, 0, 0, 1], 0)))
+            .await?;
+        Ok((peer, address))
+    }
+
     /// Accepts network clients on `address`; returns the bound address.
     pub async fn listen_tcp(self: &Arc<Self>, address: SocketAddr) -> anyhow::Result<SocketAddr> {
         let listener = TcpListener::bind(address)

@@ -77,8 +77,7 @@ impl SimMotors {
                 }
             }
             MotorPath::Peer => {
-                let peer = SimPeer::start(&options)?;
-                let address = peer.listen_tcp("127.0.0.1:0".parse()?).await?;
+                let (peer, address) = SimPeer::start_on_loopback(&options).await?;
                 let endpoint = Endpoint::Tcp {
                     host: address.ip().to_string(),
                     port: address.port(),
