@@ -16,12 +16,13 @@ use proptest::prelude::*;
 use proptest::test_runner::TestRunner;
 use serde::ser::{Serialize, SerializeTuple, Serializer};
 
+use super::dispatch::network;
 use super::rig::{CAPABILITIES, Rig, values};
 use super::robustness::{axis_config, command};
 use crate::mark::{self, MARK_LEN};
 use crate::record::{self, AxisRecord, RECORD_LEN, Record};
 use crate::sim::MountModel;
-use crate::{LinkKind, RamStorage, Session};
+use crate::{RamStorage, Session};
 
 fn fuzz_runner() -> TestRunner {
     let cases = match std::env::var("OPTALIGN_FUZZ_CASES") {
@@ -202,18 +203,6 @@ fn hello(id: u32) -> Request {
     }
 }
 
-fn network_session(rig: &mut Rig) -> Session {
-    let mut session = Session::new(LinkKind::Network);
-    let hello = Command::Hello {
-        protocol_version: PROTOCOL_VERSION,
-    };
-    assert!(matches!(
-        rig.send_on(&mut session, RequestId(1), hello),
-        Reply::Hello(_)
-    ));
-    session
-}
-
 #[test]
 fn hostile_frames_from_an_unauthenticated_client_never_move_or_write_anything() {
     let decoded = Cell::new(0);
@@ -224,7 +213,7 @@ fn hostile_frames_from_an_unauthenticated_client_never_move_or_write_anything() 
         let mut rig = Rig::new(3, 5, default_config());
         rig.ok(Command::SetKey { key: [3; KEY_LEN] });
         let writes = rig.controller.storage().writes();
-        let mut session = network_session(&mut rig);
+        let mut session = network(&mut rig);
         let mut decoder = FrameDecoder::new();
         let served = serve(
             &mut rig,
@@ -291,13 +280,7 @@ fn hostile_frames_on_the_serial_link_leave_the_controller_serving() {
             &hostile_bytes(&traffic),
         )?;
         rig.settle_fast();
-        let status = rig.status();
-        prop_assert!(
-            status
-                .axes
-                .iter()
-                .all(|a| !a.moving && a.target == a.position)
-        );
+        prop_assert!(rig.all_idle_at_target());
         prop_assert_eq!(rig.driver.sim.unpowered_steps(), 0);
 
         // The controller still moves when asked properly.
@@ -509,13 +492,7 @@ fn a_board_booted_from_hostile_storage_says_so_and_never_moves_a_lost_axis() {
                 prop_assert!(rig.steps_of(axis).is_empty(), "lost axis {} stepped", axis);
             }
         }
-        let after = rig.status();
-        prop_assert!(
-            after
-                .axes
-                .iter()
-                .all(|a| !a.moving && a.target == a.position)
-        );
+        prop_assert!(rig.all_idle_at_target());
         Ok(())
     });
     passed(result);

@@ -220,6 +220,14 @@ impl Rig {
         self.controller.status(&self.session, self.now)
     }
 
+    /// Every axis idle at its target: nothing moving, nothing left to do.
+    pub fn all_idle_at_target(&self) -> bool {
+        self.status()
+            .axes
+            .iter()
+            .all(|a| !a.moving && a.target == a.position)
+    }
+
     pub fn position(&self, axis: u8) -> i32 {
         self.status().axes[usize::from(axis)].position
     }

@@ -216,13 +216,7 @@ fn random_requests_never_panic() {
         rig.settle_fast();
         prop_assert!(!rig.controller.is_moving());
         prop_assert_eq!(rig.driver.sim.unpowered_steps(), 0);
-        let status = rig.status();
-        prop_assert!(
-            status
-                .axes
-                .iter()
-                .all(|a| !a.moving && a.target == a.position)
-        );
+        prop_assert!(rig.all_idle_at_target());
         Ok(())
     });
     if let Err(failure) = result {
