@@ -230,8 +230,7 @@ impl Plane {
                 cell.level = Some(0.0);
             }
         }
-        let known: Vec<bool> = cells.iter().map(|c| c.level.is_some()).collect();
-        let mut keep = known.clone();
+        let mut keep: Vec<bool> = cells.iter().map(|c| c.level.is_some()).collect();
         let mut plane = [0.0; 3];
         for _ in 0..5 {
             plane = least_squares_plane(&cells, &keep).unwrap_or(plane);
@@ -252,7 +251,6 @@ impl Plane {
             let spread = 1.4826 * median(kept).unwrap_or(0.0);
             let limit = CELL_OUTLIER * spread.max(0.5);
             let next: Vec<bool> = residuals.iter().map(|r| r.abs() <= limit).collect();
-            debug_assert!(next.iter().zip(&known).all(|(n, k)| !n || *k));
             if next == keep || next.iter().filter(|k| **k).count() < 3 {
                 break;
             }
