@@ -181,8 +181,15 @@ async fn the_vision_agent_aligns_the_cavity_and_its_claims_match_the_truth() {
 
 #[tokio::test]
 async fn the_vision_agent_aligns_the_relay() {
-    let summary = run(TaskKind::Relay, 9).await;
-    assert!(summary.success && summary.declared_done, "{summary:?}");
+    // Seeds 0 and 3 start with the beam at C3 as a large speckle cloud cut by the sensor's
+    // edge, whose centroid misleads the first response fit; 9 is an ordinary start.
+    for seed in [0, 3, 9] {
+        let summary = run(TaskKind::Relay, seed).await;
+        assert!(
+            summary.success && summary.declared_done,
+            "seed {seed}: {summary:?}"
+        );
+    }
 }
 
 #[tokio::test]

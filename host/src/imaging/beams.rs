@@ -586,7 +586,13 @@ fn measure(
         .map(|&b| f64::from(grid.means[b]))
         .fold(f64::MIN, f64::max);
     // Cut by the border: it is still bright there (a faint rim touching it moves the
-    // centroid by nothing worth a flag).
+    // centroid by nothing worth a flag). Smoothed blocks on both sides of the ratio: the
+    // brightest raw block of a speckled beam is one bright grain, far above the beam's
+    // level, which would make a beam centred beyond the border look whole.
+    let smooth_peak = blocks
+        .iter()
+        .map(|&b| f64::from(grid.smooth[b]))
+        .fold(f64::MIN, f64::max);
     let at_border = blocks
         .iter()
         .filter(|&&b| {
@@ -595,7 +601,7 @@ fn measure(
         })
         .map(|&b| f64::from(grid.smooth[b]))
         .fold(0.0, f64::max);
-    let clipped = at_border > CLIPPED_SHARE * peak;
+    let clipped = at_border > CLIPPED_SHARE * smooth_peak;
     let saturated_pixels = blocks
         .iter()
         .flat_map(|&b| block_pixels(b, grid, w, h))
@@ -610,7 +616,7 @@ fn measure(
         peak,
         saturated: saturated_pixels >= SATURATED_PIXELS,
         clipped,
-        edge_level: (at_border / peak.max(1e-9)).clamp(0.0, 1.0),
+        edge_level: (at_border / smooth_peak.max(1e-9)).clamp(0.0, 1.0),
         localised: roughness(picture, grid, blocks, peak) < MAX_SPOT_ROUGHNESS,
         parts,
         fit: None,

@@ -207,6 +207,23 @@ fn a_speckle_cloud_is_not_a_spot() {
 }
 
 #[test]
+fn a_speckle_cloud_centred_beyond_the_border_is_cut_not_whole() {
+    // Its brightest grains stand far above its level: measured against them, the light
+    // at the border looked faint and the cloud whole, with a centroid inside the frame.
+    let beyond = [506.0, 500.0];
+    let cloud = bench(22).gaussian(beyond, 100.0, 120.0).speckle(1.0, 2.5, 23);
+    let all = beams(&cloud);
+    let strongest = all
+        .iter()
+        .max_by(|a, b| a.signal.total_cmp(&b.signal))
+        .expect("the cloud shows");
+    assert!(
+        strongest.clipped && strongest.edge_level > 0.5,
+        "{strongest:?}"
+    );
+}
+
+#[test]
 fn a_blank_frame_has_no_beams() {
     assert!(beams(&bench(18)).is_empty());
     let busy = Scene::new(W, H)

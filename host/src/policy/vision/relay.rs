@@ -14,7 +14,7 @@ use optalign_optics::{Frame, Station};
 
 use super::model::{Tracker, Vec2, distance};
 use super::see::{View, motion, stationary_pairs};
-use super::servo::{Servo, Spot};
+use super::servo::{Servo, Spot, column_norm};
 use crate::imaging::Beam;
 use crate::task::{BenchGeometry, RelayAction, RelayLimits};
 
@@ -283,7 +283,7 @@ impl RelayAgent {
         {
             let gain = self.near.gain();
             if let Some(g) = gain {
-                self.known_response = Some(g[0][0].hypot(g[1][0]).max(g[0][1].hypot(g[1][1])));
+                self.known_response = Some(column_norm(g));
             }
             let far_gain = gain.zip(self.distances).map(|(g, d)| {
                 let ratio = d[near_station + 1] / d[near_station];

@@ -8,7 +8,9 @@
 //! mirror image) that best fits the two probes, at the larger of their scales, because a
 //! mount's two tilt axes deflect the beam at right angles; it serves until the spot shows
 //! whole, when the probes are made again. A probe that lost the spot is tried the other
-//! way, then shorter; one that hardly moved it, longer.
+//! way, then shorter; one that hardly moved it, longer; a response from a cut spot that
+//! proved wrong is probed again with longer probes, which show more than the ones that
+//! misled it, and the probes of a spot that shows whole are sized from the rough response.
 
 use nalgebra::Matrix2;
 
@@ -23,6 +25,10 @@ const MIN_MOVE_SHARE: f64 = 0.03;
 
 /// Growth (and shrinking) of probes and of the trust radius.
 const GROWTH: f64 = 2.0;
+
+/// Probes made once a spot cut by the edge shows whole aim to move it this share of the
+/// image's shorter side.
+const WHOLE_PROBE_SHARE: f64 = 0.15;
 
 /// The trust radius starts at this many probe lengths.
 const START_RADIUS_PROBES: f64 = 4.0;
@@ -192,7 +198,12 @@ impl Servo {
         if let (true, Some(spot)) = (better, seen) {
             let error = self.error(&spot, target, side);
             if self.rough && spot.whole {
-                // Shows whole now: measure the response properly from here.
+                // Shows whole now: measure the response properly from here, with probes
+                // that move the spot a useful share of the image at the rough response.
+                if let Some(scale) = self.gain.map(|g| column_norm(g).max(1e-9)) {
+                    self.probe =
+                        (WHOLE_PROBE_SHARE * side / scale).clamp(self.bounds[0], self.bounds[1]);
+                }
                 self.gain = None;
                 self.rough = false;
                 self.columns = [None; 2];
@@ -258,6 +269,9 @@ impl Servo {
                     self.rough = false;
                     self.columns = [None; 2];
                     self.pending = Pending::Nothing;
+                    if !best.spot.whole {
+                        self.probe = (self.probe * GROWTH).min(self.bounds[1]);
+                    }
                     return self.next(target);
                 }
                 self.pending = Pending::Step;
@@ -290,6 +304,13 @@ fn rotation_fit(measured: [[f64; 2]; 2]) -> [[f64; 2]; 2] {
     let scale = svd.singular_values.max();
     let q = u * v_t * scale;
     [[q[(0, 0)], q[(0, 1)]], [q[(1, 0)], q[(1, 1)]]]
+}
+
+/// The larger of a response's two columns' lengths: px per step of the stronger axis.
+pub fn column_norm(gain: [[f64; 2]; 2]) -> f64 {
+    gain[0][0]
+        .hypot(gain[1][0])
+        .max(gain[0][1].hypot(gain[1][1]))
 }
 
 /// Broyden's update of `gain` from a move of `du` (from tilt `from` to `to`) that moved
