@@ -211,7 +211,9 @@ fn a_speckle_cloud_centred_beyond_the_border_is_cut_not_whole() {
     // Its brightest grains stand far above its level: measured against them, the light
     // at the border looked faint and the cloud whole, with a centroid inside the frame.
     let beyond = [506.0, 500.0];
-    let cloud = bench(22).gaussian(beyond, 100.0, 120.0).speckle(1.0, 2.5, 23);
+    let cloud = bench(22)
+        .gaussian(beyond, 100.0, 120.0)
+        .speckle(1.0, 2.5, 23);
     let all = beams(&cloud);
     let strongest = all
         .iter()

@@ -13,7 +13,7 @@
 
 use optalign_optics::Frame;
 
-use super::model::{SAME_STEP, Sighting, Tracker, Vec2, distance};
+use super::model::{SAME_STEP, Sighting, Tracker, Vec2, column_norm, distance};
 use super::see::{Motion, Seen, View, motion, stationary_pairs};
 use super::sight::{Scales, sight};
 use crate::task::{Action, MichelsonLimits};
@@ -27,6 +27,10 @@ const PROBE_SHARES: Vec2 = [1.0 / 64.0, 1.0 / 3.0];
 /// While a beam shows only partly or not at all, probes search in steps of this share of
 /// the command range.
 const SEARCH_SHARE: f64 = 1.0 / 6.0;
+
+/// A search with a known response moves the beam by this share of the image's shorter
+/// side per probe length (the grid's points are two probe lengths apart).
+const SEARCH_GRID_SHARE: f64 = 0.5;
 
 /// A probe that did not move the beam visibly is grown by this factor; one that lost it
 /// is shrunk by it.
@@ -319,9 +323,17 @@ impl MichelsonAgent {
                 scaled(PROBE_GROWTH)
             }
             [None, None] if self.trackers[k].clean.is_empty() => {
-                // Never seen whole: search in big steps, wider each time.
-                let search = (SEARCH_SHARE * span).max(probe[0] * PROBE_GROWTH.sqrt());
-                [search.min(hi); 2]
+                // Never seen whole: search in big steps, wider each time; once the other
+                // mirror's response is known (the two mounts are alike), on a grid whose
+                // gaps the image spans.
+                let search = match self.trackers[1 - k].model() {
+                    Some(other) => {
+                        let side = after.size()[0].min(after.size()[1]);
+                        SEARCH_GRID_SHARE * side / column_norm(other.gain).max(1e-9)
+                    }
+                    None => (SEARCH_SHARE * span).max(probe[0] * PROBE_GROWTH.sqrt()),
+                };
+                [search.clamp(lo, hi); 2]
             }
             _ => probe,
         };

@@ -96,9 +96,40 @@ impl Affine {
     }
 }
 
+/// The larger of a response's two columns' lengths: px per step of the stronger axis.
+pub fn column_norm(gain: [[f64; 2]; 2]) -> f64 {
+    gain[0][0]
+        .hypot(gain[1][0])
+        .max(gain[0][1].hypot(gain[1][1]))
+}
+
 /// Euclidean distance.
 pub fn distance(a: Vec2, b: Vec2) -> f64 {
     (a[0] - b[0]).hypot(a[1] - b[1])
+}
+
+/// A search that found nothing on one grid goes on with grids this many times finer...
+const SEARCH_REFINEMENTS: i32 = 4;
+
+/// ... each over this many square rings around the start.
+const SEARCH_RINGS: i32 = 12;
+
+/// The commands of a square grid of `spacing` around `centre`, ring by ring outwards
+/// (ring k: the 8k grid points k steps away along the farther axis).
+fn square_rings(centre: Vec2, spacing: Vec2, multiples: RangeInclusive<i32>) -> Vec<Vec2> {
+    multiples
+        .flat_map(|k| {
+            (-k..=k)
+                .flat_map(move |i| (-k..=k).map(move |j| (i, j)))
+                .filter(move |(i, j)| i.abs().max(j.abs()) == k)
+        })
+        .map(|(i, j)| {
+            [
+                centre[0] + f64::from(i) * spacing[0],
+                centre[1] + f64::from(j) * spacing[1],
+            ]
+        })
+        .collect()
 }
 
 /// Eight commands around `centre` (the axes first, then the diagonals) at each multiple
@@ -695,11 +726,16 @@ impl Tracker {
         } else {
             rings(start, [2.0 * px, 2.0 * py], 1..=6)
         };
-        // When all of those were tried, a finer search around the start.
+        // When all of those were tried, finer and finer grids around the start: a beam
+        // whose response is larger than the probes assumed hides between coarse points.
         let same = self.same_command();
+        let finer = (0..=SEARCH_REFINEMENTS).flat_map(|level| {
+            let spacing = self.probe.map(|p| p / f64::from(1 << level));
+            square_rings(start, spacing, 1..=SEARCH_RINGS)
+        });
         candidates
             .into_iter()
-            .chain(rings(start, self.probe, 1..=12))
+            .chain(finer)
             .map(|c| self.clamp(c))
             .find(|c| !self.tried_within(*c, same))
             .unwrap_or_else(|| self.clamp([start[0] + px, start[1] + py]))

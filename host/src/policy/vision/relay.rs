@@ -12,9 +12,9 @@
 
 use optalign_optics::{Frame, Station};
 
-use super::model::{Tracker, Vec2, distance};
+use super::model::{Tracker, Vec2, column_norm, distance};
 use super::see::{View, motion, stationary_pairs};
-use super::servo::{Servo, Spot, column_norm};
+use super::servo::{Servo, Spot};
 use crate::imaging::Beam;
 use crate::task::{BenchGeometry, RelayAction, RelayLimits};
 

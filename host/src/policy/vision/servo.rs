@@ -14,7 +14,7 @@
 
 use nalgebra::Matrix2;
 
-use super::model::{Affine, Vec2, distance};
+use super::model::{Affine, Vec2, column_norm, distance};
 
 /// A cut spot counts as this many image shorter sides farther than any whole one, less
 /// the share of a whole spot's light it shows.
@@ -304,13 +304,6 @@ fn rotation_fit(measured: [[f64; 2]; 2]) -> [[f64; 2]; 2] {
     let scale = svd.singular_values.max();
     let q = u * v_t * scale;
     [[q[(0, 0)], q[(0, 1)]], [q[(1, 0)], q[(1, 1)]]]
-}
-
-/// The larger of a response's two columns' lengths: px per step of the stronger axis.
-pub fn column_norm(gain: [[f64; 2]; 2]) -> f64 {
-    gain[0][0]
-        .hypot(gain[1][0])
-        .max(gain[0][1].hypot(gain[1][1]))
 }
 
 /// Broyden's update of `gain` from a move of `du` (from tilt `from` to `to`) that moved
