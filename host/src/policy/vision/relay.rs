@@ -31,6 +31,10 @@ const PROBE_SHARES: Vec2 = [1.0 / 512.0, 1.0 / 4.0];
 /// While the spot has not been seen at the near station, the search grows by this factor.
 const SEARCH_GROWTH: f64 = 1.5;
 
+/// ... up to this share of the cumulative range (its grid's first ring then lies half-way
+/// to the bound; finer grids follow when the whole range was searched).
+const MAX_SEARCH_SHARE: f64 = 0.25;
+
 /// A spot at most this bright at the sensor's edge (share of its peak) is whole enough to
 /// steer by: its centroid is pulled in by a few pixels, which the next image corrects.
 const WHOLE_ENOUGH_EDGE: f64 = 0.3;
@@ -301,7 +305,8 @@ impl RelayAgent {
         // Never seen here: search outwards around the start, wider each ring.
         self.search.add_missing(u);
         if self.search.missing.len() > 1 {
-            let probe = self.search.probe.map(|p| p * SEARCH_GROWTH);
+            let widest = MAX_SEARCH_SHARE * f64::from(self.limits.max_cumulative);
+            let probe = self.search.probe.map(|p| (p * SEARCH_GROWTH).min(widest));
             self.search.set_probe(probe);
         }
         let next = self.search.next_probe(self.near_start);
