@@ -5,7 +5,7 @@
 use optalign::imaging::{Picture, changes, find_beams};
 use std::sync::Arc;
 
-use optalign::bench::{MatrixOptions, RunSpec, run_one};
+use optalign::bench::{Knob, MatrixOptions, RunSpec, run_one};
 use optalign::scenario::ScenarioFile;
 use optalign::task::TaskKind;
 use optalign_optics::{CameraPose, Cavity, Michelson, Relay, Station};
@@ -208,6 +208,23 @@ async fn the_vision_agent_aligns_every_task_on_a_1280_by_720_camera() {
         assert!(
             summary.success && summary.declared_done,
             "{task}: {summary:?}"
+        );
+    }
+}
+
+#[tokio::test]
+async fn the_vision_agent_aligns_the_relay_with_every_response_a_quarter_and_four_times_the_default()
+ {
+    // At four times the response the beam starts off the sensor at C1: the search grid is
+    // sized from the brief's tilt per step and station distances, not from any constant.
+    for (scale, seed) in [(0.25, 1), (4.0, 1), (4.0, 6)] {
+        let scenario = Knob::SensitivityScale
+            .apply(&ScenarioFile::default(), scale)
+            .expect("a valid scale");
+        let summary = run_on(TaskKind::Relay, seed, scenario, None).await;
+        assert!(
+            summary.success && summary.declared_done,
+            "x{scale}, seed {seed}: {summary:?}"
         );
     }
 }

@@ -35,6 +35,10 @@ const SEARCH_GROWTH: f64 = 1.5;
 /// to the bound; finer grids follow when the whole range was searched).
 const MAX_SEARCH_SHARE: f64 = 0.25;
 
+/// With the bench's geometry known, the search grid's points are two probe lengths apart,
+/// a probe moving the spot this share of the image's shorter side.
+const SEARCH_GRID_SHARE: f64 = 0.4;
+
 /// A spot at most this bright at the sensor's edge (share of its peak) is whole enough to
 /// steer by: its centroid is pulled in by a few pixels, which the next image corrects.
 const WHOLE_ENOUGH_EDGE: f64 = 0.3;
@@ -72,6 +76,8 @@ pub struct RelayAgent {
     limits: RelayLimits,
     /// Each station's distance from the mirror that starts its segment, when known.
     distances: Option<[f64; 8]>,
+    /// The image's shorter side, px, when the bench's geometry gives it.
+    image_side_px: Option<f64>,
     /// The spot's expected travel per step at 1 mm from the mirror, px, when the bench's
     /// tilt per step and pixel pitch are known: sizes the first probes.
     px_per_step_mm: Option<f64>,
@@ -103,6 +109,7 @@ impl RelayAgent {
         let mut agent = Self {
             limits: limits.clone(),
             distances: geometry.station_distances_mm,
+            image_side_px: geometry.image_px.map(|[w, h]| f64::from(w.min(h))),
             px_per_step_mm: geometry
                 .tilt_rad_per_step
                 .zip(geometry.pixel_pitch_mm())
@@ -128,7 +135,31 @@ impl RelayAgent {
             last: None,
         };
         agent.near = agent.new_servo(None);
+        agent.search = agent.new_search();
         agent
+    }
+
+    /// The spot's nominal travel per step at the current mirror's near station, px, when
+    /// the bench's geometry gives it.
+    fn nominal_response(&self) -> Option<f64> {
+        self.px_per_step_mm
+            .zip(self.distances)
+            .map(|(r, d)| r * d[2 * self.mirror])
+    }
+
+    /// The search for the current mirror's spot: on a grid whose gaps the image spans at
+    /// the nominal response, when the bench's geometry gives it; else from a cautious share
+    /// of the range, growing while nothing shows.
+    fn new_search(&self) -> Tracker {
+        let bound = f64::from(self.limits.max_cumulative);
+        match self.nominal_response().zip(self.image_side_px) {
+            Some((response, side)) => {
+                let probe =
+                    (SEARCH_GRID_SHARE * side / response).clamp(1.0, MAX_SEARCH_SHARE * bound);
+                Tracker::new([probe, probe], [[-bound, bound], [-bound, bound]])
+            }
+            None => new_tracker(&self.limits),
+        }
     }
 
     fn tilt_of(&self, m: usize) -> Vec2 {
@@ -247,11 +278,7 @@ impl RelayAgent {
             .previous
             .as_ref()
             .map(|(view, _, _)| view.size()[0].min(view.size()[1]));
-        let nominal = self
-            .px_per_step_mm
-            .zip(self.distances)
-            .map(|(r, d)| r * d[2 * self.mirror]);
-        let probe = match (nominal.or(self.known_response), side) {
+        let probe = match (self.nominal_response().or(self.known_response), side) {
             (Some(response), Some(side)) => PROBE_VIEW_SHARE * side / response,
             _ => CAUTIOUS_SHARE * range,
         };
@@ -304,7 +331,7 @@ impl RelayAgent {
         }
         // Never seen here: search outwards around the start, wider each ring.
         self.search.add_missing(u);
-        if self.search.missing.len() > 1 {
+        if self.search.missing.len() > 1 && self.nominal_response().is_none() {
             let widest = MAX_SEARCH_SHARE * f64::from(self.limits.max_cumulative);
             let probe = self.search.probe.map(|p| (p * SEARCH_GROWTH).min(widest));
             self.search.set_probe(probe);
@@ -365,7 +392,7 @@ impl RelayAgent {
     fn next_mirror(&mut self) {
         self.mirror += 1;
         self.phase = Phase::Near;
-        self.search = new_tracker(&self.limits);
+        self.search = self.new_search();
         self.near_start = self.tilt_of(self.mirror);
         self.near = self.new_servo(None);
     }
