@@ -47,7 +47,7 @@ async fn client(
     Client::connect(
         endpoint(address),
         ClientOptions {
-            key: key.map(AccessKey::passphrase),
+            key: key.map(|key| key.parse::<AccessKey>().expect("a well-formed key")),
             request_timeout: Duration::from_millis(500),
             ..ClientOptions::default()
         },
@@ -368,4 +368,26 @@ async fn wait_for(condition: impl Fn() -> bool) -> bool {
         tokio::time::sleep(Duration::from_millis(10)).await;
     }
     condition()
+}
+
+#[tokio::test]
+async fn a_hex_key_stands_for_its_passphrase_on_the_board_it_was_derived_for() {
+    let (_peer, address) = peer(TimeMode::Instant).await;
+    let board_id = client(address, None).await.unwrap().identity().board_id;
+    let hex = optalign::link::key::to_hex(&optalign::link::key::stretch(KEY, board_id));
+    let keyed = client(address, Some(&hex)).await.unwrap();
+    assert!(keyed.move_by(&delta(0, 5)).await.is_ok());
+    drop(keyed);
+
+    // A peer provisioned with the hex key takes the passphrase's clients.
+    let (_hex_peer, hex_address) = SimPeer::start_on_loopback(&PeerOptions {
+        axes: 2,
+        key: Some(hex),
+        time: TimeMode::Instant,
+        ..PeerOptions::default()
+    })
+    .await
+    .unwrap();
+    let by_passphrase = client(hex_address, Some(KEY)).await.unwrap();
+    assert!(by_passphrase.move_by(&delta(1, 5)).await.is_ok());
 }

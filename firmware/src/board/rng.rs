@@ -1,5 +1,5 @@
-//! Challenge and boot nonces: a ChaCha20 generator seeded at boot from the ring oscillator,
-//! whitened by SHA-256.
+//! Challenge and boot nonces (and the network stack's seed): a ChaCha20 generator seeded at
+//! boot from the ring oscillator, whitened by SHA-256.
 //!
 //! The RP2040's ring oscillator yields one biased, correlated bit per read of its RANDOMBIT
 //! register, so its bits are never used as nonces directly. At the first draw,

@@ -11,7 +11,7 @@ use optalign_protocol::{Capabilities, Command, FrameError, PeerMessage, Request,
 use super::clock::{SimClock, TimeMode};
 use super::mechanics::MechanicsOptions;
 use super::state_file::StateFile;
-use crate::link::key;
+use crate::link::AccessKey;
 
 /// How a simulated peer is set up.
 #[derive(Clone, Debug)]
@@ -19,8 +19,8 @@ pub struct PeerOptions {
     /// Number of axes (1..=8).
     pub axes: u8,
     pub mechanics: MechanicsOptions,
-    /// Access key passphrase, stretched for this peer's board id and provisioned at
-    /// start-up as if over the serial link.
+    /// Access key as a client gives it (a passphrase, stretched for this peer's board id,
+    /// or `hex:` and the derived key), provisioned at start-up as if over the serial link.
     pub key: Option<String>,
     /// Where the controller's persisted record and the true mount state survive restarts.
     pub state_file: Option<PathBuf>,
@@ -113,8 +113,9 @@ impl PeerCore {
             state_file,
             axes: options.axes,
         };
-        if let Some(passphrase) = &options.key {
-            core.provision_key(key::stretch(passphrase, board_id))?;
+        if let Some(text) = &options.key {
+            let access: AccessKey = text.parse().context("reading the peer's --key")?;
+            core.provision_key(access.for_board(board_id))?;
         }
         Ok(core)
     }
