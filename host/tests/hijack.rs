@@ -1,6 +1,7 @@
 //! Sessions that cannot be hijacked, against simulated peers on 127.0.0.1: the frames of an
 //! authenticated session replayed on a new connection, frames forged into a live session, a
-//! wrong key refused, counted and backed off, and idle strangers closed.
+//! wrong key refused, counted and backed off, idle strangers closed, `hex:` keys, and a
+//! fake controller that cannot seal its answer refused by the client.
 //!
 //! A recording proxy sits between the client and the peer: it keeps what the client sent,
 //! can inject bytes into the client's stream, and stands for a machine on the same network.
@@ -390,4 +391,57 @@ async fn a_hex_key_stands_for_its_passphrase_on_the_board_it_was_derived_for() {
     .unwrap();
     let by_passphrase = client(hex_address, Some(KEY)).await.unwrap();
     assert!(by_passphrase.move_by(&delta(1, 5)).await.is_ok());
+}
+
+/// A fake controller that answers the handshake and the challenge and accepts any answer,
+/// unsealed, as a machine impersonating the controller would (it does not hold the key).
+async fn impostor() -> SocketAddr {
+    use optalign::link::framed::{FrameReader, write_frame};
+    use optalign_protocol::{Capabilities, Identity};
+    let listener = TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let address = listener.local_addr().unwrap();
+    tokio::spawn(async move {
+        let (stream, _) = listener.accept().await.unwrap();
+        let (read, mut write) = stream.into_split();
+        let mut reader = FrameReader::<_, Request>::new(read);
+        while let Ok(Some(Ok(request))) = reader.next().await {
+            let reply = match request.command {
+                Command::Hello { .. } => Reply::Hello(Identity {
+                    protocol_version: PROTOCOL_VERSION,
+                    firmware_version: "0".try_into().unwrap(),
+                    board: "impostor".try_into().unwrap(),
+                    board_id: 1,
+                    axes: 2,
+                    capabilities: Capabilities(0),
+                    boot_nonce: 7,
+                }),
+                Command::AuthChallenge => Reply::Challenge { nonce: [0; 16] },
+                _ => Reply::Ok,
+            };
+            let message = PeerMessage::Reply {
+                id: request.id,
+                reply,
+            };
+            if write_frame(&mut write, &message).await.is_err() {
+                return;
+            }
+        }
+    });
+    address
+}
+
+#[tokio::test]
+async fn a_controller_that_cannot_seal_its_answer_is_refused() {
+    let address = impostor().await;
+    let error = client(address, Some(KEY)).await.err().unwrap();
+    assert!(
+        matches!(error, optalign::link::ClientError::Impostor { .. }),
+        "{error}"
+    );
+    assert!(
+        error
+            .to_string()
+            .contains("without proving it holds the key"),
+        "{error}"
+    );
 }
