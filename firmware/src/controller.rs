@@ -9,10 +9,12 @@ use heapless::{Deque, Vec};
 use optalign_protocol::auth::Key;
 use optalign_protocol::{
     AxisConfig, AxisStatus, BootRecord, Capabilities, Direction, Faults, MAX_AXES, MoveOutcome,
-    Notification, PeerMessage, RequestId, SessionState, Status, StorageFailure, StorageHealth,
+    Notification, PeerMessage, RequestId, SecurityCounters, SessionState, Status, StorageFailure,
+    StorageHealth,
 };
 
 use crate::axis::Axis;
+use crate::backoff::AuthBackoff;
 use crate::config::{default_config, validate};
 use crate::control::ControlClaim;
 use crate::driver::StepDriver;
@@ -58,6 +60,10 @@ pub struct Controller<S: Storage> {
     pub(crate) key: Option<Key>,
     /// Bumped by every new key, revoking earlier authentications.
     pub(crate) key_epoch: u32,
+    /// Failed authentications, and the delay they impose on the next attempt.
+    pub(crate) auth_backoff: AuthBackoff,
+    /// Frames dropped by the seal check of authenticated sessions.
+    pub(crate) rejected_frames: u32,
     pub(crate) wifi: Option<WifiCredentials>,
     /// The move being executed.
     pub(crate) active: Option<Move>,
@@ -138,6 +144,8 @@ impl<S: Storage> Controller<S> {
             axes,
             key,
             key_epoch: 0,
+            auth_backoff: AuthBackoff::default(),
+            rejected_frames: 0,
             wifi,
             active: None,
             pending: None,
@@ -510,7 +518,17 @@ impl<S: Storage> Controller<S> {
             uptime_ms: now.saturating_sub(self.boot_us) / 1000,
             boot: self.boot,
             storage: self.storage_health(),
+            security: SecurityCounters {
+                failed_authentications: self.auth_backoff.failures(),
+                rejected_frames: self.rejected_frames,
+            },
         }
+    }
+
+    /// When authentication attempts are accepted again after failures (in the past when
+    /// they are accepted now); see [`crate::backoff`].
+    pub fn authentication_reopens_at_us(&self) -> u64 {
+        self.auth_backoff.reopens_at_us()
     }
 
     pub(crate) fn is_authenticated(&self, session: &Session) -> bool {

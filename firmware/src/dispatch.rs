@@ -1,7 +1,9 @@
 //! The command dispatcher: handshake, access control, the request-id memory, and the
 //! execution of every command.
 //!
-//! Order of checks: handshake, then access (so a session without access learns nothing
+//! Order of checks: handshake, then the reserved slot (a session on the slot kept for a
+//! client that authenticates may only authenticate or stop), then access (so a session
+//! without access learns nothing
 //! from the reply memory, not even a cached reply), then the reply memory (so a client that
 //! reconnected gets its retransmission answered even while its old connection still holds
 //! control), then the single-controller rule (see [`crate::control`]), then the command.
@@ -20,9 +22,10 @@
 //! in turn never runs; it finishes `Stopped` at once.
 
 use heapless::String;
-use optalign_protocol::auth::verify_tag;
+use optalign_protocol::auth::{Nonce, session_key, verify_tag};
 use optalign_protocol::error_reply;
 use optalign_protocol::limits::{KEY_LEN, NONCE_LEN};
+use optalign_protocol::seal::{Direction, Opener, Sealer};
 use optalign_protocol::{
     Access, AxisConfig, AxisValue, Capabilities, Command, ErrorCode, ErrorReply, Faults,
     FrameError, Identity, MAX_AXES, MoveOutcome, Notification, PROTOCOL_VERSION, PeerMessage,
@@ -60,8 +63,12 @@ impl<S: Storage> Controller<S> {
         });
     }
 
-    /// Reports a frame that could not be read; nothing is executed.
+    /// Reports a frame that could not be read, or that the session's seal check refused
+    /// (counted in `Status`); nothing is executed.
     pub fn link_error(&mut self, error: FrameError, out: &mut dyn FnMut(PeerMessage)) {
+        if error.is_seal_failure() {
+            self.rejected_frames = self.rejected_frames.saturating_add(1);
+        }
         out(PeerMessage::LinkError(ErrorReply::new(
             error.code(),
             format_args!("{error}"),
@@ -80,6 +87,12 @@ impl<S: Storage> Controller<S> {
             return Err(error_reply!(
                 ErrorCode::HANDSHAKE_REQUIRED,
                 "send Hello {{ protocol_version: {PROTOCOL_VERSION} }} first"
+            ));
+        }
+        if session.refuses_on_reserved_slot(command) {
+            return Err(error_reply!(
+                ErrorCode::BUSY,
+                "the last free client slot is kept for a client that authenticates"
             ));
         }
         self.check_access(session, command)?;
@@ -172,8 +185,10 @@ impl<S: Storage> Controller<S> {
                 self.key_epoch = self.key_epoch.wrapping_add(1);
                 self.save("access key")
             }
-            Command::AuthChallenge => self.challenge(session, id, rng),
-            Command::AuthResponse { tag } => self.authenticate(session, tag),
+            Command::AuthChallenge => self.challenge(session, id, now, rng),
+            Command::AuthResponse { tag, client_nonce } => {
+                self.authenticate(session, tag, client_nonce, now)
+            }
             Command::ClearEmergency => {
                 self.clear_emergency();
                 Ok(Reply::Ok)
@@ -209,11 +224,13 @@ impl<S: Storage> Controller<S> {
         &self,
         session: &mut Session,
         id: RequestId,
+        now: u64,
         rng: &mut dyn RngSource,
     ) -> Result<Reply, ErrorReply> {
         if self.key.is_none() {
             return Err(no_key());
         }
+        self.check_backoff(now)?;
         if let Some((drawn_for, nonce)) = session.nonce
             && drawn_for == id
         {
@@ -225,30 +242,55 @@ impl<S: Storage> Controller<S> {
         Ok(Reply::Challenge { nonce })
     }
 
+    /// Verifies the response to the outstanding challenge. On success the session's frames
+    /// are sealed from here on, under a key derived from both nonces; a failure is counted
+    /// and closes authentication for a while ([`crate::backoff`]).
     fn authenticate(
-        &self,
+        &mut self,
         session: &mut Session,
         tag: &[u8; KEY_LEN],
+        client_nonce: &Nonce,
+        now: u64,
     ) -> Result<Reply, ErrorReply> {
         let Some(key) = self.key else {
             return Err(no_key());
         };
-        // A nonce answers one response, right or wrong.
+        // A nonce answers one response, right or wrong (or refused for the backoff).
         let Some((_, nonce)) = session.nonce.take() else {
             return Err(error_reply!(
                 ErrorCode::AUTH_FAILED,
                 "no challenge outstanding: send AuthChallenge first"
             ));
         };
-        if verify_tag(&key, &nonce, tag) {
+        self.check_backoff(now)?;
+        if verify_tag(&key, &nonce, client_nonce, tag) {
+            self.auth_backoff.succeeded();
             session.authenticated = Some(self.key_epoch);
+            let channel = session_key(&key, &nonce, client_nonce);
+            session
+                .inbound()
+                .install(Opener::new(channel, Direction::ToController), true);
+            session.sealer = Some(Sealer::new(channel, Direction::ToHost));
             Ok(Reply::Ok)
         } else {
+            self.auth_backoff.failed(now);
             session.authenticated = None;
             Err(error_reply!(
                 ErrorCode::AUTH_FAILED,
                 "challenge response does not verify (wrong key?)"
             ))
+        }
+    }
+
+    /// Refuses an authentication attempt while the backoff after failures runs.
+    fn check_backoff(&self, now: u64) -> Result<(), ErrorReply> {
+        match self.auth_backoff.wait_us(now) {
+            Some(wait_us) => Err(error_reply!(
+                ErrorCode::AUTH_BACKOFF,
+                "authentication failed just before: try again in {} ms",
+                wait_us.div_ceil(1000)
+            )),
+            None => Ok(()),
         }
     }
 

@@ -8,7 +8,14 @@
 //! How an embedder drives it:
 //! - every decoded request goes to [`Controller::handle`], whose `out` receives exactly one
 //!   message, the reply, for that session;
-//! - a frame that could not be decoded goes to [`Controller::link_error`];
+//! - frames are decoded against the session's [`Session::inbound`] (on an authenticated
+//!   network session only sealed frames pass); a frame that could not be decoded or was
+//!   refused goes to [`Controller::link_error`];
+//! - once a session authenticated, [`Session::take_sealer`] gives the sealer for every
+//!   frame sent to it from then on (the reply that confirmed authentication included),
+//!   notifications too;
+//! - a network connection is closed when [`Session::close_at_us`] passes (an
+//!   unauthenticated client that went idle), and [`Session::heard`] notes each request;
 //! - when a connection ends, its session goes to [`Controller::end_session`], which
 //!   releases control of the motors if that session held it;
 //! - [`Controller::poll`] runs whenever [`Controller::next_deadline_us`] is due (and may run
@@ -19,6 +26,7 @@
 #![cfg_attr(not(test), no_std)]
 
 mod axis;
+mod backoff;
 #[cfg(any(feature = "board", feature = "emu"))]
 pub mod board;
 pub mod config;

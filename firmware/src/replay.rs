@@ -177,7 +177,8 @@ mod tests {
         assert!(!ReplyCache::applies_to(&Command::Status));
         assert!(!ReplyCache::applies_to(&Command::AuthChallenge));
         assert!(!ReplyCache::applies_to(&Command::AuthResponse {
-            tag: [0; 32]
+            tag: [0; 32],
+            client_nonce: [0; 16],
         }));
     }
 }

@@ -4,9 +4,9 @@
 
 use std::sync::Arc;
 
-use optalign::link::{Client, ClientOptions, Endpoint};
+use optalign::link::{AccessKey, Client, ClientOptions, Endpoint};
 use optalign::peer::{MechanicsOptions, PeerOptions, SimPeer, TimeMode};
-use optalign_protocol::{AxisConfig, Command, auth};
+use optalign_protocol::{AxisConfig, Command};
 
 /// The key the simulated peers are provisioned with.
 pub const SIM_KEY: &str = "hil-test-key";
@@ -131,7 +131,7 @@ impl Target {
 
 fn options(key: Option<&str>) -> ClientOptions {
     ClientOptions {
-        key: key.map(auth::derive_key),
+        key: key.map(AccessKey::passphrase),
         ..ClientOptions::default()
     }
 }

@@ -710,15 +710,16 @@ async fn a_peer_without_a_key_refuses_tcp_motion_and_says_how_to_provision() {
     assert!(error.to_string().contains("provision"), "{error}");
     // Provision over the trusted serial link, then the network client can move.
     let serial = target.serial_client().await.unwrap();
+    let board_id = serial.identity().board_id;
     serial
         .command_ok(Command::SetKey {
-            key: auth::derive_key("fresh-key-123"),
+            key: optalign::link::key::stretch("fresh-key-123", board_id),
         })
         .await
         .unwrap();
     let error = serial
         .command_ok(Command::SetKey {
-            key: auth::derive_key("x"),
+            key: optalign::link::key::stretch("x", board_id),
         })
         .await;
     assert!(error.is_ok(), "serial stays trusted");

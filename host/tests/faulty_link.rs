@@ -25,7 +25,7 @@ use optalign_firmware::Session;
 use optalign_firmware::sim::SimRng;
 use optalign_protocol::{
     AxisConfig, AxisValue, Command, ErrorCode, MoveOutcome, MoveResult, Notification, PeerMessage,
-    Reply, Request, RequestId, auth,
+    Reply, Request, RequestId,
 };
 
 const KEY: &str = "faulty-link-test-key";
@@ -213,7 +213,7 @@ async fn campaign(seed: u64, attempts: u32, moves: usize) -> (Figures, String) {
     let client = Client::connect(
         format!("tcp://{}", proxy.address()).parse().unwrap(),
         ClientOptions {
-            key: Some(auth::derive_key(KEY)),
+            key: Some(optalign::link::AccessKey::passphrase(KEY)),
             request_timeout: Duration::from_millis(200),
             attempts,
             connect_timeout: Duration::from_secs(2),
@@ -431,7 +431,7 @@ async fn a_lost_authentication_reply_does_not_leave_the_client_unauthenticated()
     let client = Client::connect(
         format!("tcp://{relay}").parse().unwrap(),
         ClientOptions {
-            key: Some(auth::derive_key(KEY)),
+            key: Some(optalign::link::AccessKey::passphrase(KEY)),
             request_timeout: Duration::from_millis(300),
             ..ClientOptions::default()
         },

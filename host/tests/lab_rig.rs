@@ -58,7 +58,7 @@ async fn keyed_client(url: &str) -> optalign::link::Client {
     optalign::link::Client::connect(
         url.parse().unwrap(),
         optalign::link::ClientOptions {
-            key: Some(optalign_protocol::auth::derive_key(KEY)),
+            key: Some(optalign::link::AccessKey::passphrase(KEY)),
             ..Default::default()
         },
     )

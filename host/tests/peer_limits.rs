@@ -5,10 +5,10 @@
 use std::sync::Arc;
 use std::time::Duration;
 
-use optalign::link::{Client, ClientError, ClientOptions, Endpoint};
+use optalign::link::{AccessKey, Client, ClientError, ClientOptions, Endpoint};
 use optalign::peer::{PeerOptions, SimPeer, TimeMode};
 use optalign_protocol::{
-    Command, ErrorCode, MAX_FRAME, PROTOCOL_VERSION, Request, RequestId, auth, encode_frame,
+    Command, ErrorCode, MAX_FRAME, PROTOCOL_VERSION, Request, RequestId, encode_frame,
 };
 use tokio::io::AsyncWriteExt;
 use tokio::net::TcpSocket;
@@ -32,7 +32,7 @@ async fn connect(endpoint: &Endpoint, key: bool) -> Result<Client, ClientError> 
     Client::connect(
         endpoint.clone(),
         ClientOptions {
-            key: key.then(|| auth::derive_key(KEY)),
+            key: key.then(|| AccessKey::passphrase(KEY)),
             ..ClientOptions::default()
         },
     )

@@ -11,7 +11,7 @@ use std::time::Duration;
 
 use optalign::link::{Client, ClientError, ClientOptions, Endpoint, Unknown};
 use optalign::peer::{PeerOptions, SimPeer, TimeMode};
-use optalign_protocol::{AxisValue, Command, Faults, MoveOutcome, Reply, Request, RequestId, auth};
+use optalign_protocol::{AxisValue, Command, Faults, MoveOutcome, Reply, Request, RequestId};
 use tokio::io::{AsyncBufReadExt, AsyncReadExt, AsyncWriteExt, BufReader};
 use tokio::net::{TcpListener, TcpStream};
 use tokio::process::Child;
@@ -119,7 +119,7 @@ async fn peer_process(state: &Path) -> (Child, String) {
 
 fn client_options() -> ClientOptions {
     ClientOptions {
-        key: Some(auth::derive_key(KEY)),
+        key: Some(optalign::link::AccessKey::passphrase(KEY)),
         ..ClientOptions::default()
     }
 }

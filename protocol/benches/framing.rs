@@ -35,6 +35,7 @@ fn status_message() -> PeerMessage {
             uptime_ms: 123_456_789,
             boot: BootRecord::Restored,
             storage: StorageHealth::default(),
+            security: SecurityCounters::default(),
         }),
     }
 }

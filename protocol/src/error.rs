@@ -21,6 +21,9 @@ impl ErrorCode {
     pub const FRAME_TOO_LARGE: Self = Self(3);
     /// The frame was intact but did not decode as a message.
     pub const MALFORMED: Self = Self(4);
+    /// On an authenticated session: the frame's MAC did not verify, its counter was not
+    /// above the last one (a replay), or it carried no MAC. It was dropped.
+    pub const BAD_SEAL: Self = Self(5);
     /// The two sides speak different protocol versions.
     pub const VERSION_MISMATCH: Self = Self(10);
     /// A request arrived before the `Hello` handshake.
@@ -33,6 +36,8 @@ impl ErrorCode {
     pub const AUTH_FAILED: Self = Self(22);
     /// The request is only accepted on the serial link.
     pub const SERIAL_ONLY: Self = Self(23);
+    /// Authentications failed just before: the next one is accepted after a delay.
+    pub const AUTH_BACKOFF: Self = Self(24);
     /// Another client controls this peer.
     pub const BUSY: Self = Self(30);
     /// The request named an axis the peer does not have.
@@ -57,12 +62,14 @@ impl ErrorCode {
             Self::BAD_CRC => "bad-crc",
             Self::FRAME_TOO_LARGE => "frame-too-large",
             Self::MALFORMED => "malformed",
+            Self::BAD_SEAL => "bad-seal",
             Self::VERSION_MISMATCH => "version-mismatch",
             Self::HANDSHAKE_REQUIRED => "handshake-required",
             Self::UNAUTHORIZED => "unauthorized",
             Self::NO_KEY => "no-key",
             Self::AUTH_FAILED => "auth-failed",
             Self::SERIAL_ONLY => "serial-only",
+            Self::AUTH_BACKOFF => "auth-backoff",
             Self::BUSY => "busy",
             Self::UNKNOWN_AXIS => "unknown-axis",
             Self::OUT_OF_LIMITS => "out-of-limits",

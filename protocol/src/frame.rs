@@ -5,6 +5,13 @@
 //! inside a frame, so a receiver that loses sync (line noise, a torn write, garbage)
 //! recovers at the next `0x00`. Empty frames (`0x00 0x00`) are ignored, so a sender may
 //! emit a delimiter first to flush a half-received frame at the other end.
+//!
+//! On an authenticated network session a frame's payload is the message followed by its
+//! [`Seal`] (counter and truncated MAC, see [`crate::seal`]): postcard messages delimit
+//! themselves, so what follows the message is the seal. [`encode_sealed_frame`] writes such
+//! frames; [`FrameDecoder::push_checked`] and [`FrameDecoder::feed_checked`] read them and
+//! check the seal against the receiver's [`Inbound`]. The plain [`FrameDecoder::push`] and
+//! [`FrameDecoder::feed`] accept unsealed frames only.
 
 use core::fmt;
 
@@ -14,6 +21,7 @@ use serde::de::DeserializeOwned;
 
 use crate::error::ErrorCode;
 use crate::limits::{CRC_LEN, MAX_FRAME, MAX_PAYLOAD};
+use crate::seal::{Inbound, SEAL_LEN, Seal, Sealer};
 
 /// CRC-32C, slice-by-16 (a 16 KiB table in flash; several times faster than byte-wise).
 const CRC32C: Crc<u32, Table<16>> = Crc::<u32, Table<16>>::new(&CRC_32_ISCSI);
@@ -31,6 +39,25 @@ pub enum FrameError {
     BadCrc,
     /// The frame was intact but is not a valid message.
     Malformed,
+    /// The frame's seal did not verify: forged, altered, or of another session.
+    BadSeal,
+    /// The frame's seal verified but its counter was not above the last one accepted: a
+    /// replay.
+    Replayed,
+    /// A plain frame on a session whose frames must be sealed.
+    Unsealed,
+    /// A sealed frame on a session that has no session key.
+    UnexpectedSeal,
+}
+
+impl FrameError {
+    /// Whether the frame was refused by the session's seal check (rather than unreadable).
+    pub fn is_seal_failure(self) -> bool {
+        matches!(
+            self,
+            Self::BadSeal | Self::Replayed | Self::Unsealed | Self::UnexpectedSeal
+        )
+    }
 }
 
 impl FrameError {
@@ -41,6 +68,9 @@ impl FrameError {
             Self::BadStuffing => ErrorCode::BAD_FRAME,
             Self::BadCrc => ErrorCode::BAD_CRC,
             Self::Malformed => ErrorCode::MALFORMED,
+            Self::BadSeal | Self::Replayed | Self::Unsealed | Self::UnexpectedSeal => {
+                ErrorCode::BAD_SEAL
+            }
         }
     }
 }
@@ -53,6 +83,10 @@ impl fmt::Display for FrameError {
             Self::BadStuffing => "frame is not valid COBS or is truncated",
             Self::BadCrc => "frame CRC mismatch",
             Self::Malformed => "frame does not decode as a message",
+            Self::BadSeal => "frame MAC does not verify for this session (forged or altered)",
+            Self::Replayed => "frame counter not above the last one accepted (a replay)",
+            Self::Unsealed => "frame carries no MAC but this session is authenticated",
+            Self::UnexpectedSeal => "frame carries a MAC but this session has no session key",
         })
     }
 }
@@ -63,13 +97,35 @@ pub fn encode_frame<T: Serialize>(
     message: &T,
     out: &mut [u8; MAX_FRAME],
 ) -> Result<usize, FrameError> {
-    let mut raw = [0u8; MAX_PAYLOAD + CRC_LEN];
-    let payload_len = postcard::to_slice(message, &mut raw[..MAX_PAYLOAD])
+    encode(message, None, out)
+}
+
+/// Encodes `message` followed by its seal from `sealer` as one complete frame.
+pub fn encode_sealed_frame<T: Serialize>(
+    message: &T,
+    sealer: &mut Sealer,
+    out: &mut [u8; MAX_FRAME],
+) -> Result<usize, FrameError> {
+    encode(message, Some(sealer), out)
+}
+
+fn encode<T: Serialize>(
+    message: &T,
+    sealer: Option<&mut Sealer>,
+    out: &mut [u8; MAX_FRAME],
+) -> Result<usize, FrameError> {
+    let mut raw = [0u8; MAX_PAYLOAD + SEAL_LEN + CRC_LEN];
+    let mut len = postcard::to_slice(message, &mut raw[..MAX_PAYLOAD])
         .map_err(|_| FrameError::TooLargeToSend)?
         .len();
-    let crc = CRC32C.checksum(&raw[..payload_len]);
-    raw[payload_len..payload_len + CRC_LEN].copy_from_slice(&crc.to_le_bytes());
-    let stuffed = cobs::try_encode(&raw[..payload_len + CRC_LEN], &mut out[..MAX_FRAME - 1])
+    if let Some(sealer) = sealer {
+        let seal = sealer.seal(&raw[..len]).to_bytes();
+        raw[len..len + SEAL_LEN].copy_from_slice(&seal);
+        len += SEAL_LEN;
+    }
+    let crc = CRC32C.checksum(&raw[..len]);
+    raw[len..len + CRC_LEN].copy_from_slice(&crc.to_le_bytes());
+    let stuffed = cobs::try_encode(&raw[..len + CRC_LEN], &mut out[..MAX_FRAME - 1])
         .map_err(|_| FrameError::TooLargeToSend)?;
     out[stuffed] = 0;
     Ok(stuffed + 1)
@@ -111,8 +167,27 @@ impl FrameDecoder {
         self.len > 0 || self.overflowed
     }
 
-    /// Feeds one byte; returns a message or an error when the byte ends a frame.
+    /// Feeds one byte; returns a message or an error when the byte ends a frame. Only plain
+    /// (unsealed) frames are accepted.
     pub fn push<T: DeserializeOwned>(&mut self, byte: u8) -> Option<Result<T, FrameError>> {
+        self.push_with(byte, decode_plain)
+    }
+
+    /// Like [`push`](Self::push), checking each frame's seal (or its absence) against
+    /// `inbound`; a refused frame yields its error and nothing else.
+    pub fn push_checked<T: DeserializeOwned>(
+        &mut self,
+        byte: u8,
+        inbound: &mut Inbound,
+    ) -> Option<Result<T, FrameError>> {
+        self.push_with(byte, |payload| decode_checked(payload, inbound))
+    }
+
+    fn push_with<T>(
+        &mut self,
+        byte: u8,
+        decode: impl FnOnce(&[u8]) -> Result<T, FrameError>,
+    ) -> Option<Result<T, FrameError>> {
         if byte != 0 {
             if self.len < self.buf.len() {
                 self.buf[self.len] = byte;
@@ -129,16 +204,40 @@ impl FrameDecoder {
         if len == 0 {
             return None;
         }
-        Some(decode_stuffed(&mut self.buf[..len]))
+        Some(unstuff(&mut self.buf[..len]).and_then(decode))
     }
 
     /// Feeds a buffer, calling `on_frame` for every frame it completes. Equivalent to
     /// [`push`](Self::push) for every byte, but copies runs of frame bytes at once.
     pub fn feed<T: DeserializeOwned>(
         &mut self,
-        mut bytes: &[u8],
+        bytes: &[u8],
         mut on_frame: impl FnMut(Result<T, FrameError>),
     ) {
+        self.feed_with(bytes, |decoder, byte| {
+            if let Some(result) = decoder.push(byte) {
+                on_frame(result);
+            }
+        });
+    }
+
+    /// [`feed`](Self::feed) with every frame checked against `inbound`, as
+    /// [`push_checked`](Self::push_checked) does.
+    pub fn feed_checked<T: DeserializeOwned>(
+        &mut self,
+        bytes: &[u8],
+        inbound: &mut Inbound,
+        mut on_frame: impl FnMut(Result<T, FrameError>),
+    ) {
+        self.feed_with(bytes, |decoder, byte| {
+            if let Some(result) = decoder.push_checked(byte, inbound) {
+                on_frame(result);
+            }
+        });
+    }
+
+    /// Copies runs of frame bytes at once and hands each delimiter to `delimit`.
+    fn feed_with(&mut self, mut bytes: &[u8], mut delimit: impl FnMut(&mut Self, u8)) {
         while !bytes.is_empty() {
             let run = bytes.iter().position(|&b| b == 0).unwrap_or(bytes.len());
             let (body, rest) = bytes.split_at(run);
@@ -152,9 +251,7 @@ impl FrameDecoder {
             }
             match rest.split_first() {
                 Some((&delimiter, tail)) => {
-                    if let Some(result) = self.push(delimiter) {
-                        on_frame(result);
-                    }
+                    delimit(self, delimiter);
                     bytes = tail;
                 }
                 None => bytes = rest,
@@ -163,7 +260,8 @@ impl FrameDecoder {
     }
 }
 
-fn decode_stuffed<T: DeserializeOwned>(stuffed: &mut [u8]) -> Result<T, FrameError> {
+/// Undoes the stuffing and checks the CRC; returns the payload.
+fn unstuff(stuffed: &mut [u8]) -> Result<&[u8], FrameError> {
     let len = cobs::decode_in_place(stuffed).map_err(|_| FrameError::BadStuffing)?;
     if len < CRC_LEN {
         return Err(FrameError::BadStuffing);
@@ -174,8 +272,30 @@ fn decode_stuffed<T: DeserializeOwned>(stuffed: &mut [u8]) -> Result<T, FrameErr
     if CRC32C.checksum(payload) != u32::from_le_bytes(crc) {
         return Err(FrameError::BadCrc);
     }
+    Ok(payload)
+}
+
+/// A payload that is exactly one message.
+fn decode_plain<T: DeserializeOwned>(payload: &[u8]) -> Result<T, FrameError> {
     match postcard::take_from_bytes::<T>(payload) {
         Ok((message, [])) => Ok(message),
         _ => Err(FrameError::Malformed),
     }
+}
+
+/// A payload that is one message, followed by a seal or not, as `inbound` requires.
+fn decode_checked<T: DeserializeOwned>(
+    payload: &[u8],
+    inbound: &mut Inbound,
+) -> Result<T, FrameError> {
+    let (message, rest) =
+        postcard::take_from_bytes::<T>(payload).map_err(|_| FrameError::Malformed)?;
+    let body = &payload[..payload.len() - rest.len()];
+    let seal = match rest.len() {
+        0 => None,
+        SEAL_LEN => Seal::from_bytes(rest),
+        _ => return Err(FrameError::Malformed),
+    };
+    inbound.check(body, seal.as_ref())?;
+    Ok(message)
 }

@@ -5,7 +5,7 @@
 /// Bump it whenever the encoding of any message changes. `Command::Hello` and the error
 /// reply are frozen, and a peer answers a `Hello` of another version with that error (never
 /// with an `Identity`), so a mismatch can always be reported.
-pub const PROTOCOL_VERSION: u16 = 3;
+pub const PROTOCOL_VERSION: u16 = 4;
 
 /// Most axes one controller exposes (a Pico W drives four; the simulated peer up to eight).
 pub const MAX_AXES: usize = 8;
@@ -13,7 +13,8 @@ pub const MAX_AXES: usize = 8;
 /// Largest serialized message, before the CRC and COBS stuffing are added.
 pub const MAX_PAYLOAD: usize = 480;
 
-/// Largest frame on the wire: payload, 4-byte CRC, COBS overhead and the 0x00 delimiter.
+/// Largest frame on the wire: payload, seal, 4-byte CRC, COBS overhead and the 0x00
+/// delimiter.
 pub const MAX_FRAME: usize = 512;
 
 /// Bytes of the CRC-32C trailer inside each frame.
@@ -31,7 +32,8 @@ pub const PASSPHRASE_LEN: usize = 64;
 /// Size of the challenge nonce a peer issues for authentication.
 pub const NONCE_LEN: usize = 16;
 
-/// Size of the pre-shared key and of the HMAC-SHA256 tag.
+/// Size of the pre-shared key, of session keys and of the HMAC-SHA256 challenge tag.
 pub const KEY_LEN: usize = 32;
 
-const _: () = assert!(MAX_PAYLOAD + CRC_LEN + (MAX_PAYLOAD + CRC_LEN) / 254 + 2 <= MAX_FRAME);
+const SEALED: usize = MAX_PAYLOAD + crate::seal::SEAL_LEN + CRC_LEN;
+const _: () = assert!(SEALED + SEALED / 254 + 2 <= MAX_FRAME);

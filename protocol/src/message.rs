@@ -61,8 +61,14 @@ pub enum Command {
     SetKey { key: [u8; KEY_LEN] },
     /// Asks for a fresh challenge nonce.
     AuthChallenge,
-    /// Answers the latest challenge with HMAC-SHA256(key, nonce || context).
-    AuthResponse { tag: [u8; KEY_LEN] },
+    /// Answers the latest challenge: `client_nonce` is drawn by the client, `tag` is
+    /// HMAC-SHA256(key, context || nonce || client_nonce) (see [`crate::auth`]). When it
+    /// verifies, every later frame of the session is sealed ([`crate::seal`]), the `Ok`
+    /// reply included.
+    AuthResponse {
+        tag: [u8; KEY_LEN],
+        client_nonce: [u8; NONCE_LEN],
+    },
     /// Releases the emergency latch so that moves are accepted again (coils stay off until
     /// the next move).
     ClearEmergency,
@@ -235,6 +241,18 @@ pub struct Status {
     pub boot: BootRecord,
     /// Whether everything saved is durably in storage, and how writes failed.
     pub storage: StorageHealth,
+    /// Network authentication and sealed-frame failures since start-up.
+    pub security: SecurityCounters,
+}
+
+/// What a controller counts of failed network access since start-up.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct SecurityCounters {
+    /// Challenge responses that did not verify (a wrong key, or guessing).
+    pub failed_authentications: u32,
+    /// Frames dropped on authenticated sessions: a MAC that did not verify, a replayed
+    /// counter, or no MAC at all.
+    pub rejected_frames: u32,
 }
 
 /// The state of a controller's persistent writes.

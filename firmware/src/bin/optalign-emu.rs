@@ -21,7 +21,7 @@ use embassy_rp::watchdog::Watchdog;
 use embassy_rp::{Peri, bind_interrupts};
 use embassy_sync::blocking_mutex::Mutex;
 use optalign_firmware::board::events::QUEUES;
-use optalign_firmware::board::rng::Rosc;
+use optalign_firmware::board::rng::Nonces;
 use optalign_firmware::board::{AXES, SharedCore, motion, now_us, timer_steps, uart, watchdog};
 use optalign_firmware::{BoardInfo, Controller, RamStorage};
 use optalign_protocol::Capabilities;
@@ -74,7 +74,7 @@ async fn main(spawner: Spawner) {
         info,
         RamStorage::new(),
         now_us(),
-        &mut Rosc,
+        &mut Nonces,
     ))));
 
     let steps_spawner = STEPS.start(interrupt::SWI_IRQ_0);

@@ -22,7 +22,7 @@ use embassy_sync::blocking_mutex::Mutex;
 use optalign_firmware::board::events::QUEUES;
 use optalign_firmware::board::flash::{BoardFlash, FlashStorage};
 use optalign_firmware::board::pio_steps::{Feeder, StepProgram};
-use optalign_firmware::board::rng::Rosc;
+use optalign_firmware::board::rng::Nonces;
 use optalign_firmware::board::wifi::Radio;
 use optalign_firmware::board::{
     AXES, SharedCore, flash, motion, now_us, tcp, usb as usb_link, watchdog, wifi,
@@ -108,7 +108,7 @@ async fn main(spawner: Spawner) {
         info,
         storage,
         now_us(),
-        &mut Rosc,
+        &mut Nonces,
     ))));
     info!(
         "optalign {} on board {:016x}",

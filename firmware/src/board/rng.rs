@@ -1,14 +1,53 @@
-//! Challenge nonces from the RP2040's ring oscillator (its RANDOMBIT register).
+//! Challenge and boot nonces (and the network stack's seed): a ChaCha20 generator seeded at
+//! boot from the ring oscillator, whitened by SHA-256.
+//!
+//! The RP2040's ring oscillator yields one biased, correlated bit per read of its RANDOMBIT
+//! register, so its bits are never used as nonces directly. At the first draw,
+//! [`SEED_SAMPLES`] bytes of ring-oscillator output are hashed with SHA-256 together with the
+//! uptime in microseconds and a label; the digest seeds ChaCha20 (`rand_chacha`), and every
+//! nonce is drawn from that generator.
+
+use core::cell::RefCell;
 
 use embassy_rp::clocks::RoscRng;
+use embassy_sync::blocking_mutex::Mutex;
+use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
+use rand_chacha::ChaCha20Rng;
+use rand_chacha::rand_core::{RngCore, SeedableRng};
+use sha2::{Digest, Sha256};
 
+use super::now_us;
 use crate::session::RngSource;
 
-/// The ring oscillator as the core's [`RngSource`].
-pub struct Rosc;
+/// Ring-oscillator bytes (eight RANDOMBIT reads each) hashed into the seed.
+pub const SEED_SAMPLES: usize = 256;
 
-impl RngSource for Rosc {
+/// Domain separation for the seed.
+const SEED_CONTEXT: &[u8] = b"optalign-nonce-seed-v1";
+
+/// The generator, seeded at its first use.
+static GENERATOR: Mutex<CriticalSectionRawMutex, RefCell<Option<ChaCha20Rng>>> =
+    Mutex::new(RefCell::new(None));
+
+/// The whitened generator as the core's [`RngSource`].
+pub struct Nonces;
+
+impl RngSource for Nonces {
     fn fill(&mut self, buf: &mut [u8]) {
-        RoscRng.fill_bytes(buf);
+        GENERATOR.lock(|cell| cell.borrow_mut().get_or_insert_with(seeded).fill_bytes(buf));
     }
+}
+
+/// A generator seeded from hashed ring-oscillator samples and the uptime.
+fn seeded() -> ChaCha20Rng {
+    let mut hasher = Sha256::new();
+    hasher.update(SEED_CONTEXT);
+    hasher.update(now_us().to_le_bytes());
+    let mut samples = [0u8; 32];
+    for _ in 0..SEED_SAMPLES / samples.len() {
+        RoscRng.fill_bytes(&mut samples);
+        hasher.update(samples);
+    }
+    hasher.update(now_us().to_le_bytes());
+    ChaCha20Rng::from_seed(hasher.finalize().into())
 }

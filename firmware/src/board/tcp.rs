@@ -2,12 +2,19 @@
 //! controls the motors, the others may read status and stop them (see the core's
 //! single-controller rule).
 //!
+//! The last free connection is kept for a client that authenticates: a connection that
+//! takes it may only shake hands, authenticate or stop until it has authenticated, and is
+//! closed if it has not within a few seconds. Every unauthenticated connection is closed
+//! after a few idle seconds (see the core's `Session::close_at_us`), so strangers cannot
+//! hold every connection.
+//!
 //! Keep-alive probes every 5 s and a 15 s timeout close a connection whose client vanished
 //! with the Wi-Fi, which releases control for the next client.
 
 use embassy_net::Stack;
 use embassy_net::tcp::TcpSocket;
 use embassy_time::{Duration, with_timeout};
+use portable_atomic::{AtomicUsize, Ordering};
 
 use super::SharedCore;
 use super::link;
@@ -20,6 +27,9 @@ pub const PORT: u16 = 7878;
 pub const SESSIONS: usize = 3;
 
 const BUFFER: usize = 1024;
+
+/// Connections being served now.
+static OPEN: AtomicUsize = AtomicUsize::new(0);
 const KEEP_ALIVE: Duration = Duration::from_secs(5);
 const TIMEOUT: Duration = Duration::from_secs(15);
 
@@ -38,8 +48,10 @@ pub async fn serve(core: &'static SharedCore, stack: Stack<'static>) -> ! {
             continue;
         }
         info!("tcp: client {}", socket.remote_endpoint());
+        let reserved = OPEN.fetch_add(1, Ordering::AcqRel) + 1 >= SESSIONS;
         let (mut reader, mut writer) = socket.split();
-        link::serve(core, LinkKind::Network, &mut reader, &mut writer).await;
+        link::serve(core, LinkKind::Network, reserved, &mut reader, &mut writer).await;
+        OPEN.fetch_sub(1, Ordering::AcqRel);
         socket.close();
         // Let the FIN go out before the buffers are reused.
         let _ = with_timeout(Duration::from_secs(1), socket.flush()).await;

@@ -14,6 +14,6 @@ pub const BAUD: u32 = 115_200;
 pub async fn serve(core: &'static SharedCore, uart: BufferedUart) -> ! {
     let (mut tx, mut rx) = uart.split();
     loop {
-        link::serve(core, LinkKind::Serial, &mut rx, &mut tx).await;
+        link::serve(core, LinkKind::Serial, false, &mut rx, &mut tx).await;
     }
 }

@@ -70,7 +70,7 @@ async fn serial(core: &'static SharedCore, class: CdcAcmClass<'static, UsbDriver
     let mut tx = Packets(sender);
     loop {
         rx.wait_connection().await;
-        link::serve(core, LinkKind::Serial, &mut rx, &mut tx).await;
+        link::serve(core, LinkKind::Serial, false, &mut rx, &mut tx).await;
     }
 }
 

@@ -15,7 +15,6 @@ use defmt::unwrap;
 use embassy_executor::Spawner;
 use embassy_futures::select::{Either, select};
 use embassy_net::{Config, DhcpConfig, Stack, StackResources};
-use embassy_rp::clocks::RoscRng;
 use embassy_rp::gpio::{Level, Output};
 use embassy_rp::peripherals::{DMA_CH0, PIN_23, PIN_24, PIN_25, PIN_29, PIO0};
 use embassy_rp::pio::{InterruptHandler, Pio};
@@ -24,8 +23,10 @@ use embassy_time::{Duration, Timer, with_timeout};
 use static_cell::StaticCell;
 
 use super::log::{info, warn};
+use super::rng::Nonces;
 use super::{SharedCore, led, tcp};
 use crate::record::WifiCredentials;
+use crate::session::RngSource;
 
 /// CYW43439 Wi-Fi firmware (~226 KiB), 4-byte aligned as the driver streams words.
 static FIRMWARE: &Aligned<A4, [u8]> = &Aligned(*cyw43_firmware::CYW43_43439A0);
@@ -106,11 +107,15 @@ where
     let mut dhcp = DhcpConfig::default();
     dhcp.hostname = hostname.try_into().ok();
     static RESOURCES: StaticCell<StackResources<SOCKETS>> = StaticCell::new();
+    // The stack's seed (TCP initial sequence numbers, local ports) from the whitened
+    // generator, not raw ring-oscillator bits.
+    let mut seed = [0u8; 8];
+    Nonces.fill(&mut seed);
     let (stack, runner) = embassy_net::new(
         device,
         Config::dhcpv4(dhcp),
         RESOURCES.init(StackResources::new()),
-        RoscRng.next_u64(),
+        u64::from_le_bytes(seed),
     );
     spawner.spawn(unwrap!(stack_runner(runner)));
     (stack, control)

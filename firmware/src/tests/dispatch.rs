@@ -52,8 +52,26 @@ pub(super) fn authenticate(rig: &mut Rig, session: &mut Session, key: &[u8; 32])
     else {
         panic!("no challenge");
     };
-    let tag = challenge_tag(key, &nonce);
-    rig.send_on(session, RequestId(3), Command::AuthResponse { tag })
+    let tag = challenge_tag(key, &nonce, &CLIENT_NONCE);
+    rig.send_on(
+        session,
+        RequestId(3),
+        Command::AuthResponse {
+            tag,
+            client_nonce: CLIENT_NONCE,
+        },
+    )
+}
+
+/// The nonce the tests' clients draw.
+pub(super) const CLIENT_NONCE: [u8; 16] = [0x33; 16];
+
+/// The response to `nonce` under `key`.
+pub(super) fn response(key: &[u8; 32], nonce: &[u8; 16]) -> Command {
+    Command::AuthResponse {
+        tag: challenge_tag(key, nonce, &CLIENT_NONCE),
+        client_nonce: CLIENT_NONCE,
+    }
 }
 
 pub(super) fn a_move() -> Command {
@@ -148,7 +166,8 @@ fn network_control_needs_a_key_then_authentication() {
         code(&rig.send_on(&mut net, RequestId(17), a_move())),
         Some(ErrorCode::UNAUTHORIZED)
     );
-    // The right key works.
+    // The right key works, once the backoff after the failure has run out.
+    rig.now += crate::backoff::FIRST_DELAY_US;
     assert_eq!(authenticate(&mut rig, &mut net, &KEY), Reply::Ok);
     let status = rig.controller.status(&net, rig.now).session;
     assert!(status.authenticated && status.key_provisioned && !status.trusted_link);
@@ -176,16 +195,16 @@ fn a_nonce_answers_one_response() {
     else {
         panic!("no challenge");
     };
-    let tag = challenge_tag(&KEY, &nonce);
+    let answer = response(&KEY, &nonce);
     assert_eq!(
-        rig.send_on(&mut net, RequestId(3), Command::AuthResponse { tag }),
+        rig.send_on(&mut net, RequestId(3), answer.clone()),
         Reply::Ok
     );
     // Replaying the same tag (on another connection too) fails: the nonce is gone.
-    let reply = rig.send_on(&mut net, RequestId(4), Command::AuthResponse { tag });
+    let reply = rig.send_on(&mut net, RequestId(4), answer.clone());
     assert_eq!(code(&reply), Some(ErrorCode::AUTH_FAILED));
     let mut other = network(&mut rig);
-    let reply = rig.send_on(&mut other, RequestId(3), Command::AuthResponse { tag });
+    let reply = rig.send_on(&mut other, RequestId(3), answer);
     assert_eq!(code(&reply), Some(ErrorCode::AUTH_FAILED));
     // Challenges differ.
     let Reply::Challenge { nonce: second } =
@@ -215,9 +234,8 @@ fn a_repeated_challenge_request_gets_the_same_nonce() {
     // Another request is another challenge.
     let fresh = challenge(&mut rig, &mut net, 3);
     assert_ne!(fresh, first);
-    let tag = challenge_tag(&KEY, &fresh);
     assert_eq!(
-        rig.send_on(&mut net, RequestId(4), Command::AuthResponse { tag }),
+        rig.send_on(&mut net, RequestId(4), response(&KEY, &fresh)),
         Reply::Ok
     );
     // Once answered, even the same request id draws a new nonce.

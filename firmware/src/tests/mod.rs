@@ -9,3 +9,4 @@ mod persistence;
 mod rig;
 mod robustness;
 mod saving;
+mod sessions;

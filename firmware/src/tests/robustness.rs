@@ -98,7 +98,8 @@ pub(super) fn command() -> impl Strategy<Value = Command> {
         }),
         1 => (0u8..3).prop_map(|key| Command::SetKey { key: [key; 32] }),
         1 => Just(Command::AuthChallenge),
-        1 => any::<[u8; 32]>().prop_map(|tag| Command::AuthResponse { tag }),
+        1 => (any::<[u8; 32]>(), any::<[u8; 16]>())
+            .prop_map(|(tag, client_nonce)| Command::AuthResponse { tag, client_nonce }),
     ]
 }
 
@@ -175,18 +176,19 @@ fn random_requests_never_panic() {
                     }
                 }
                 Event::Authenticate(session) => {
+                    // With the key in force, if any (a wrong one would only start a backoff).
                     let mut s = sessions[session].clone();
-                    for key in 0..3 {
-                        if let Reply::Challenge { nonce } =
-                            rig.send_on(&mut s, RequestId(7), Command::AuthChallenge)
-                        {
-                            let tag = challenge_tag(&[key; 32], &nonce);
-                            if rig.send_on(&mut s, RequestId(8), Command::AuthResponse { tag })
-                                == Reply::Ok
-                            {
-                                break;
-                            }
-                        }
+                    if let (Some(key), Reply::Challenge { nonce }) = (
+                        rig.controller.key,
+                        rig.send_on(&mut s, RequestId(7), Command::AuthChallenge),
+                    ) {
+                        let client_nonce = [0x44; 16];
+                        let tag = challenge_tag(&key, &nonce, &client_nonce);
+                        rig.send_on(
+                            &mut s,
+                            RequestId(8),
+                            Command::AuthResponse { tag, client_nonce },
+                        );
                     }
                     sessions[session] = s;
                 }

@@ -4,9 +4,8 @@ use std::time::Duration;
 
 use anyhow::Context;
 use clap::Args;
-use optalign_protocol::auth;
 
-use crate::link::{Client, ClientError, ClientOptions, Endpoint};
+use crate::link::{AccessKey, Client, ClientError, ClientOptions, Endpoint};
 use optalign_protocol::ErrorCode;
 
 /// Where the controller is and how to authenticate.
@@ -15,7 +14,8 @@ pub struct ControllerArgs {
     /// Controller URL: tcp://HOST:PORT (Wi-Fi board or simulated peer) or serial://PATH.
     #[arg(long, env = "OPTALIGN_CONTROLLER", value_name = "URL")]
     pub controller: Endpoint,
-    /// Access key for motion and configuration over TCP (prefer the environment variable).
+    /// Access key for motion and configuration over TCP (prefer the environment variable): a
+    /// passphrase, or the derived key as `hex:` and 64 hex digits.
     #[arg(long, env = "OPTALIGN_KEY", hide_env_values = true, value_name = "KEY")]
     pub key: Option<String>,
     /// How long to wait for each reply before retransmitting, in milliseconds.
@@ -25,8 +25,14 @@ pub struct ControllerArgs {
 
 impl ControllerArgs {
     pub async fn connect(&self) -> anyhow::Result<Client> {
+        let key = self
+            .key
+            .as_deref()
+            .map(str::parse::<AccessKey>)
+            .transpose()
+            .context("reading the access key (--key or OPTALIGN_KEY)")?;
         let options = ClientOptions {
-            key: self.key.as_deref().map(auth::derive_key),
+            key,
             request_timeout: Duration::from_millis(self.timeout_ms.max(1)),
             ..ClientOptions::default()
         };

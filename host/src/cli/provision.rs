@@ -2,10 +2,10 @@
 
 use anyhow::{Context, bail};
 use clap::Args;
+use optalign_protocol::Command;
 use optalign_protocol::limits::{PASSPHRASE_LEN, SSID_LEN};
-use optalign_protocol::{Command, auth};
 
-use crate::link::{Client, ClientOptions, Endpoint};
+use crate::link::{AccessKey, Client, ClientOptions, Endpoint};
 
 #[derive(Debug, Args)]
 pub struct ProvisionArgs {
@@ -23,7 +23,9 @@ pub struct ProvisionArgs {
         requires = "ssid"
     )]
     psk: Option<String>,
-    /// Access key that network clients must prove; prefer OPTALIGN_KEY.
+    /// Access key that network clients must prove; prefer OPTALIGN_KEY. A passphrase is
+    /// stretched with Argon2id salted with the board's id and only the result is stored;
+    /// `hex:` and 64 hex digits stores those 32 bytes as they are.
     #[arg(long, env = "OPTALIGN_KEY", hide_env_values = true)]
     key: Option<String>,
 }
@@ -32,6 +34,12 @@ pub async fn run(args: ProvisionArgs) -> anyhow::Result<()> {
     if args.ssid.is_none() && args.key.is_none() {
         bail!("nothing to provision: give --ssid and --psk, and/or --key");
     }
+    let key = args
+        .key
+        .as_deref()
+        .map(str::parse::<AccessKey>)
+        .transpose()
+        .context("reading --key (or OPTALIGN_KEY)")?;
     let ssid = args
         .ssid
         .as_deref()
@@ -63,17 +71,17 @@ pub async fn run(args: ProvisionArgs) -> anyhow::Result<()> {
             .await?;
         println!("Wi-Fi credentials stored for network {name:?}");
     }
-    if let Some(key) = args.key.as_deref() {
-        if key.len() < 12 {
+    if let Some(key) = key {
+        if let AccessKey::Passphrase(passphrase) = &key
+            && passphrase.chars().count() < 12
+        {
             eprintln!(
-                "warning: a key shorter than 12 characters is easy to guess; anyone on the lab network can try"
+                "warning: a key shorter than 12 characters is easy to guess offline from one recorded handshake, even stretched"
             );
         }
-        client
-            .command_ok(Command::SetKey {
-                key: auth::derive_key(key),
-            })
-            .await?;
+        let board_id = client.identity().board_id;
+        let derived = tokio::task::spawn_blocking(move || key.for_board(board_id)).await?;
+        client.command_ok(Command::SetKey { key: derived }).await?;
         println!("access key stored; network clients must now present it (OPTALIGN_KEY)");
     }
     Ok(())

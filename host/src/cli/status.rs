@@ -2,8 +2,8 @@
 
 use clap::Args;
 use optalign_protocol::{
-    AxisStatus, BootRecord, Direction, Faults, Identity, Slack, Status, StorageFailure,
-    StorageHealth,
+    AxisStatus, BootRecord, Direction, Faults, Identity, SecurityCounters, Slack, Status,
+    StorageFailure, StorageHealth,
 };
 use serde_json::json;
 
@@ -70,6 +70,7 @@ fn render_table(endpoint: &str, identity: &Identity, status: &Status) -> String 
         }
     };
     out += &describe_storage(&status.storage);
+    out += &describe_security(&status.security);
     let lost: Vec<String> = (0..)
         .zip(&status.axes)
         .filter(|(_, axis)| axis.faults.has(Faults::POSITION_LOST))
@@ -136,6 +137,18 @@ fn describe_storage(health: &StorageHealth) -> String {
     format!("storage: {state}{failures}\n")
 }
 
+/// The network security line: failed authentications and frames dropped by the seal check.
+fn describe_security(counters: &SecurityCounters) -> String {
+    let plural = |count: u32| if count == 1 { "" } else { "s" };
+    let failed = counters.failed_authentications;
+    let rejected = counters.rejected_frames;
+    format!(
+        "network: {failed} failed authentication{} and {rejected} rejected frame{} (bad MAC, replay or no MAC) since start-up\n",
+        plural(failed),
+        plural(rejected)
+    )
+}
+
 fn yes_no(value: bool) -> &'static str {
     if value { "yes" } else { "no" }
 }
@@ -169,6 +182,17 @@ mod tests {
         assert!(
             line.contains("2 failed writes since start-up (last: read back different bytes)"),
             "{line}"
+        );
+    }
+
+    #[test]
+    fn the_network_line_counts_failed_authentications_and_rejected_frames() {
+        assert_eq!(
+            describe_security(&SecurityCounters {
+                failed_authentications: 1,
+                rejected_frames: 3,
+            }),
+            "network: 1 failed authentication and 3 rejected frames (bad MAC, replay or no MAC) since start-up\n"
         );
     }
 }

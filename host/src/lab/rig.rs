@@ -12,13 +12,13 @@ use anyhow::{Context, bail};
 use async_trait::async_trait;
 use optalign_optics::seeds::{cavity_offsets, michelson_offsets, relay_offsets};
 use optalign_optics::{Cavity, Frame, Michelson, Relay, Station};
-use optalign_protocol::{AxisValue, Command, MoveOutcome, auth};
+use optalign_protocol::{AxisValue, Command, MoveOutcome};
 
 use super::camera::{Camera, CommandCamera, FolderCamera, SimCamera, SimScene, SimView};
 use super::mover::{CameraMover, CommandMover, HttpMover, ManualMover, SimMover};
 use super::rigfile::{AxisRoute, CameraSpec, MoverSpec, RigFile};
 use super::scoring::LabScorer;
-use crate::link::{Client, ClientOptions, Endpoint};
+use crate::link::{AccessKey, Client, ClientOptions, Endpoint};
 use crate::peer::{SimPeer, registry};
 use crate::rig::{ControllerView, Executed, Rig, Score};
 use crate::scenario::ScenarioFile;
@@ -66,7 +66,11 @@ impl LabRig {
                 );
             }
             let options = ClientOptions {
-                key: key.as_deref().map(auth::derive_key),
+                key: key
+                    .as_deref()
+                    .map(str::parse::<AccessKey>)
+                    .transpose()
+                    .with_context(|| format!("reading the access key in {}", spec.key_env))?,
                 ..ClientOptions::default()
             };
             let client = Client::connect(endpoint, options).await.with_context(|| {

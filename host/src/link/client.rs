@@ -13,6 +13,15 @@
 //! start-up that saw the first transmission: a command with an effect is never sent again
 //! once the controller's boot nonce has changed, and its outcome is reported as unknown
 //! ([`ClientError::OutcomeUnknown`]).
+//!
+//! Authentication: after the handshake the client derives the board's key (an
+//! [`AccessKey`] passphrase is stretched with Argon2id, salted with the board id from
+//! `Identity`, once per board), answers the challenge with a nonce of its own, and derives the
+//! session key. From the controller's `Ok` on, every frame either way is sealed: the client
+//! seals what it sends and drops (as [`Event::Garbage`]) what does not carry this session's
+//! seal. An `Ok` that is not sealed means the answer did not come from a controller holding
+//! the key, and the connection is refused. While the controller backs off after failed
+//! authentications, the client waits as long as it is told and tries again.
 
 use std::collections::HashMap;
 use std::sync::atomic::{AtomicU32, Ordering};
@@ -20,6 +29,7 @@ use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use optalign_protocol::auth::{self, Key};
+use optalign_protocol::seal::{Direction, Inbound, Opener, Sealer};
 use optalign_protocol::{
     AxisConfig, AxisValue, Command, ErrorCode, ErrorReply, FrameError, Identity, MAX_AXES,
     MoveOutcome, MoveResult, Notification, PROTOCOL_VERSION, PeerMessage, Reply, Request,
@@ -30,14 +40,21 @@ use tokio::sync::{broadcast, oneshot};
 use tokio::task::JoinHandle;
 
 use super::endpoint::Endpoint;
-use super::framed::{FrameReader, write_frame};
+use super::framed::{FrameReader, write_frame_sealed};
+use super::key::AccessKey;
 use super::transport::Transport;
+
+/// How often authentication is tried while the controller backs off.
+const AUTH_TRIES: u32 = 4;
+
+/// The longest backoff the client waits out before trying again.
+const LONGEST_BACKOFF: Duration = Duration::from_secs(10);
 
 /// How a client behaves on a slow or failing link.
 #[derive(Clone, Debug)]
 pub struct ClientOptions {
     /// The access key; needed for motion and configuration over the network.
-    pub key: Option<Key>,
+    pub key: Option<AccessKey>,
     /// How long to wait for one reply before retransmitting.
     pub request_timeout: Duration,
     /// How many times a request is sent (first try included) before giving up.
@@ -78,6 +95,10 @@ pub enum ClientError {
     },
     #[error("controller refused the request: {0}")]
     Rejected(ErrorReply),
+    #[error(
+        "controller at {endpoint} accepted authentication without proving it holds the key (its answer was not sealed): a machine in between, or a broken controller"
+    )]
+    Impostor { endpoint: Endpoint },
     #[error(
         "sending to controller at {endpoint} timed out after {waited:?}: it takes no more bytes (a zero TCP window or a stuck serial port)"
     )]
@@ -163,6 +184,10 @@ type Pending = Arc<Mutex<HashMap<u32, oneshot::Sender<Reply>>>>;
 struct Connection {
     writer: WriteHalf<Transport>,
     reader: JoinHandle<()>,
+    /// What the reader accepts (sealed frames only, once the session key is installed).
+    inbound: Arc<Mutex<Inbound>>,
+    /// Seals every frame sent once authenticated.
+    sealer: Option<Sealer>,
 }
 
 impl Drop for Connection {
@@ -180,6 +205,8 @@ pub struct Client {
     events: broadcast::Sender<Event>,
     next_id: AtomicU32,
     identity: Mutex<Option<Identity>>,
+    /// The key derived for the board last connected to, and that board's id.
+    derived: Mutex<Option<(u64, Key)>>,
 }
 
 impl Client {
@@ -194,6 +221,7 @@ impl Client {
             events,
             next_id: AtomicU32::new(rand::random()),
             identity: Mutex::new(None),
+            derived: Mutex::new(None),
         };
         {
             let mut connection = client.connection.lock().await;
@@ -265,6 +293,7 @@ impl Client {
                 Ok(reply) => return Ok(reply),
                 Err(
                     error @ (ClientError::VersionMismatch { .. }
+                    | ClientError::Impostor { .. }
                     | ClientError::Rejected(_)
                     | ClientError::OutcomeUnknown { .. }),
                 ) => {
@@ -349,7 +378,8 @@ impl Client {
         let Some(open) = connection.as_mut() else {
             unreachable!("open() either connects or returns an error")
         };
-        if let Err(error) = self.bounded(write_frame(&mut open.writer, request)).await {
+        let written = write_frame_sealed(&mut open.writer, request, open.sealer.as_mut());
+        if let Err(error) = self.bounded(written).await {
             // A frame cut short would garble the next one: start over on a new link.
             *connection = None;
             return Err(error);
@@ -386,12 +416,19 @@ impl Client {
         let (read, mut writer) = tokio::io::split(transport);
         // A lone delimiter flushes any half frame a previous client left at the peer.
         self.bounded(writer.write_all(&[0])).await?;
+        let inbound = Arc::new(Mutex::new(Inbound::plain()));
         let reader = tokio::spawn(read_loop(
             FrameReader::new(read),
+            inbound.clone(),
             self.pending.clone(),
             self.events.clone(),
         ));
-        *slot = Some(Connection { writer, reader });
+        *slot = Some(Connection {
+            writer,
+            reader,
+            inbound,
+            sealer: None,
+        });
         let established = self.establish(slot).await;
         if established.is_err() {
             // A connection whose handshake or authentication failed must not be reused:
@@ -404,11 +441,32 @@ impl Client {
     /// Handshake and (with a key, on network links) authentication on a new connection.
     async fn establish(&self, slot: &mut Option<Connection>) -> Result<(), ClientError> {
         let identity = self.handshake(slot).await?;
+        let board_id = identity.board_id;
         *self.identity.lock().unwrap_or_else(|e| e.into_inner()) = Some(identity);
-        if let (Some(key), false) = (self.options.key, self.endpoint.is_serial()) {
+        if let (Some(key), false) = (&self.options.key, self.endpoint.is_serial()) {
+            let key = self.board_key(key, board_id).await?;
             self.authenticate(slot, &key).await?;
         }
         Ok(())
+    }
+
+    /// `key` as the board `board_id` stores it (stretched once per board, off the executor).
+    async fn board_key(&self, key: &AccessKey, board_id: u64) -> Result<Key, ClientError> {
+        let cached = *self.derived.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some((id, derived)) = cached
+            && id == board_id
+        {
+            return Ok(derived);
+        }
+        let access = key.clone();
+        let derived = tokio::task::spawn_blocking(move || access.for_board(board_id))
+            .await
+            .map_err(|error| ClientError::Io {
+                endpoint: self.endpoint.clone(),
+                source: std::io::Error::other(format!("deriving the key failed: {error}")),
+            })?;
+        *self.derived.lock().unwrap_or_else(|e| e.into_inner()) = Some((board_id, derived));
+        Ok(derived)
     }
 
     /// A request on a connection being set up (no reconnect, no retransmit).
@@ -431,8 +489,12 @@ impl Client {
             endpoint: self.endpoint.clone(),
             source,
         };
-        self.bounded(write_frame(&mut connection.writer, &request))
-            .await?;
+        self.bounded(write_frame_sealed(
+            &mut connection.writer,
+            &request,
+            connection.sealer.as_mut(),
+        ))
+        .await?;
         let reply = tokio::time::timeout(self.options.request_timeout, receiver).await;
         self.pending
             .lock()
@@ -479,7 +541,30 @@ impl Client {
         }
     }
 
+    /// Answers a challenge; tries again while the controller backs off after failures.
     async fn authenticate(
+        &self,
+        slot: &mut Option<Connection>,
+        key: &Key,
+    ) -> Result<(), ClientError> {
+        let mut tries = 0;
+        loop {
+            tries += 1;
+            match self.answer_challenge(slot, key).await {
+                Err(ClientError::Rejected(error))
+                    if error.code == ErrorCode::AUTH_BACKOFF && tries < AUTH_TRIES =>
+                {
+                    let wait = backoff_from(&error).min(LONGEST_BACKOFF);
+                    tracing::info!(?wait, "controller backs off authentication; waiting");
+                    tokio::time::sleep(wait).await;
+                }
+                outcome => return outcome,
+            }
+        }
+    }
+
+    /// One challenge and its answer; on success the connection is sealed both ways.
+    async fn answer_challenge(
         &self,
         slot: &mut Option<Connection>,
         key: &Key,
@@ -489,13 +574,31 @@ impl Client {
             Reply::Error(error) => return Err(ClientError::Rejected(error)),
             other => return Err(self.unexpected("AuthChallenge", other)),
         };
-        let tag = auth::challenge_tag(key, &nonce);
-        match self
-            .setup_request(slot, Command::AuthResponse { tag })
-            .await?
-        {
-            Reply::Ok => Ok(()),
-            Reply::Error(error) => Err(ClientError::Rejected(error)),
+        let client_nonce: auth::Nonce = rand::random();
+        let tag = auth::challenge_tag(key, &nonce, &client_nonce);
+        let session = auth::session_key(key, &nonce, &client_nonce);
+        let inbound = {
+            let connection = slot.as_mut().expect("setup runs on an open connection");
+            connection.inbound.clone()
+        };
+        // Before the answer goes out: the controller seals its reply to it.
+        lock(&inbound).install(Opener::new(session, Direction::ToHost), false);
+        let reply = self
+            .setup_request(slot, Command::AuthResponse { tag, client_nonce })
+            .await?;
+        match reply {
+            Reply::Ok if lock(&inbound).is_sealed() => {
+                let connection = slot.as_mut().expect("setup runs on an open connection");
+                connection.sealer = Some(Sealer::new(session, Direction::ToController));
+                Ok(())
+            }
+            Reply::Ok => Err(ClientError::Impostor {
+                endpoint: self.endpoint.clone(),
+            }),
+            Reply::Error(error) => {
+                *lock(&inbound) = Inbound::plain();
+                Err(ClientError::Rejected(error))
+            }
             other => Err(self.unexpected("AuthResponse", other)),
         }
     }
@@ -679,6 +782,22 @@ fn to_axis_list(values: &[AxisValue]) -> heapless::Vec<AxisValue, MAX_AXES> {
     values.iter().copied().take(MAX_AXES).collect()
 }
 
+/// Reads how long to wait out of an `auth-backoff` reason ("try again in N ms").
+fn backoff_from(error: &ErrorReply) -> Duration {
+    let millis = error
+        .reason
+        .split("try again in ")
+        .nth(1)
+        .and_then(|rest| rest.split(|c: char| !c.is_ascii_digit()).next())
+        .and_then(|digits| digits.parse().ok())
+        .unwrap_or(1000);
+    Duration::from_millis(millis)
+}
+
+fn lock<T>(mutex: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+    mutex.lock().unwrap_or_else(|e| e.into_inner())
+}
+
 /// Reads the peer's version out of a version-mismatch reason ("peer speaks protocol N").
 fn peer_version_from(error: &ErrorReply) -> Option<u16> {
     let rest = error.reason.split("speaks protocol ").nth(1)?;
@@ -690,11 +809,12 @@ fn peer_version_from(error: &ErrorReply) -> Option<u16> {
 
 async fn read_loop(
     mut reader: FrameReader<tokio::io::ReadHalf<Transport>, PeerMessage>,
+    inbound: Arc<Mutex<Inbound>>,
     pending: Pending,
     events: broadcast::Sender<Event>,
 ) {
     loop {
-        match reader.next().await {
+        match reader.next_shared(&inbound).await {
             Ok(Some(Ok(PeerMessage::Reply { id, reply }))) => {
                 let waiter = pending
                     .lock()

@@ -4,7 +4,9 @@
 pub mod client;
 pub mod endpoint;
 pub mod framed;
+pub mod key;
 pub mod transport;
 
 pub use client::{Client, ClientError, ClientOptions, Event, MoveReport, Unknown};
 pub use endpoint::{Endpoint, EndpointError};
+pub use key::{AccessKey, KeyError};

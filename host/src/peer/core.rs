@@ -6,11 +6,12 @@ use std::path::PathBuf;
 use anyhow::Context;
 use optalign_firmware::sim::SimDriver;
 use optalign_firmware::{BoardInfo, Controller, LinkKind, RamStorage, RngSource, Session};
-use optalign_protocol::{Capabilities, Command, FrameError, PeerMessage, Request, RequestId, auth};
+use optalign_protocol::{Capabilities, Command, FrameError, PeerMessage, Request, RequestId};
 
 use super::clock::{SimClock, TimeMode};
 use super::mechanics::MechanicsOptions;
 use super::state_file::StateFile;
+use crate::link::AccessKey;
 
 /// How a simulated peer is set up.
 #[derive(Clone, Debug)]
@@ -18,7 +19,8 @@ pub struct PeerOptions {
     /// Number of axes (1..=8).
     pub axes: u8,
     pub mechanics: MechanicsOptions,
-    /// Access key passphrase, provisioned at start-up as if over the serial link.
+    /// Access key as a client gives it (a passphrase, stretched for this peer's board id,
+    /// or `hex:` and the derived key), provisioned at start-up as if over the serial link.
     pub key: Option<String>,
     /// Where the controller's persisted record and the true mount state survive restarts.
     pub state_file: Option<PathBuf>,
@@ -41,12 +43,16 @@ impl Default for PeerOptions {
     }
 }
 
-/// Randomness for challenge nonces, from the operating system.
+/// Randomness for challenge and boot nonces, from the operating system's generator (or,
+/// should it fail, the thread generator it seeded).
 struct OsRandom;
 
 impl RngSource for OsRandom {
     fn fill(&mut self, buf: &mut [u8]) {
-        rand::fill(buf);
+        use rand::TryRngCore;
+        if rand::rngs::OsRng.try_fill_bytes(buf).is_err() {
+            rand::fill(buf);
+        }
     }
 }
 
@@ -87,10 +93,11 @@ impl PeerCore {
             ),
             None => (options.mechanics.driver(options.axes), RamStorage::new()),
         };
+        let board_id = 0x5157_0000_0000_0000 | u64::from(options.axes);
         let info = BoardInfo {
             board: "optalign-sim-peer",
             firmware_version: env!("CARGO_PKG_VERSION"),
-            board_id: 0x5157_0000_0000_0000 | u64::from(options.axes),
+            board_id,
             axes: options.axes,
             capabilities: Capabilities::UNIPOLAR_HALF_STEP
                 | Capabilities::STEP_DIR
@@ -106,8 +113,9 @@ impl PeerCore {
             state_file,
             axes: options.axes,
         };
-        if let Some(passphrase) = &options.key {
-            core.provision_key(passphrase)?;
+        if let Some(text) = &options.key {
+            let access: AccessKey = text.parse().context("reading the peer's --key")?;
+            core.provision_key(access.for_board(board_id))?;
         }
         Ok(core)
     }
@@ -126,13 +134,11 @@ impl PeerCore {
     }
 
     /// Stores the access key through the serial-only command, as `optalign provision` does.
-    fn provision_key(&mut self, passphrase: &str) -> anyhow::Result<()> {
+    fn provision_key(&mut self, key: optalign_protocol::auth::Key) -> anyhow::Result<()> {
         let mut session = self.serial_session();
         let set_key = Request {
             id: RequestId(rand::random()),
-            command: Command::SetKey {
-                key: auth::derive_key(passphrase),
-            },
+            command: Command::SetKey { key },
         };
         for message in self.handle(&mut session, &set_key) {
             if let PeerMessage::Reply {
@@ -147,7 +153,20 @@ impl PeerCore {
     }
 
     /// Executes one request from `session`; returns the replies for that session.
+    ///
+    /// On instant time, simulated time passes only when something waits for it: an
+    /// authentication attempt during the backoff after failures moves it to the backoff's
+    /// end, so the backoff costs no wall-clock time there (scaled time keeps it real).
     pub fn handle(&mut self, session: &mut Session, request: &Request) -> Vec<PeerMessage> {
+        if self.clock.mode() == TimeMode::Instant
+            && matches!(
+                request.command,
+                Command::AuthChallenge | Command::AuthResponse { .. }
+            )
+        {
+            self.clock
+                .jump_to(self.controller.authentication_reopens_at_us());
+        }
         let mut out = Vec::new();
         let now = self.clock.now_us();
         self.controller

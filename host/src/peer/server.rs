@@ -5,6 +5,12 @@
 //! `busy` and closed, and the last free slot is kept for a client that authenticates), and
 //! a bounded reply queue per connection, so a client that does not read its replies stops
 //! being read instead of growing the peer's memory.
+//!
+//! Sessions as on a board: frames are checked against the session (sealed only once it
+//! authenticated), every frame written after authentication is sealed, notifications
+//! included, and a network connection that has not authenticated is closed when its
+//! session says so (idle for a few seconds, or too long on the reserved slot), on the wall
+//! clock whatever the simulated time.
 
 use std::net::SocketAddr;
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -12,7 +18,8 @@ use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::Duration;
 
 use optalign_firmware::{LinkKind, Session};
-use optalign_protocol::{Command, ErrorCode, ErrorReply, PeerMessage, Reply, Request};
+use optalign_protocol::seal::Sealer;
+use optalign_protocol::{ErrorCode, ErrorReply, PeerMessage, Reply, Request};
 use tokio::io::{AsyncRead, AsyncWrite};
 use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::{Notify, broadcast, mpsc};
@@ -20,13 +27,17 @@ use tokio::task::JoinHandle;
 
 use super::clock::TimeMode;
 use super::core::{PeerCore, PeerOptions};
-use crate::link::framed::{FrameReader, write_frame};
+use crate::link::framed::{FrameReader, write_frame, write_frame_sealed};
 
 /// Replies waiting to be written to one connection.
 const REPLY_QUEUE: usize = 32;
 
 /// How long a refused connection gets to send its first request (to be answered by id).
 const REFUSAL_WAIT: Duration = Duration::from_secs(2);
+
+/// What the reader of a connection hands its writer: a message, and the sealer to seal it
+/// and every later frame with when the session has just authenticated.
+type Outgoing = (PeerMessage, Option<Sealer>);
 
 /// A running simulated controller.
 pub struct SimPeer {
@@ -168,19 +179,24 @@ impl SimPeer {
     }
 
     /// Serves one byte stream; on a `reserved` slot, nothing but the handshake,
-    /// authentication and emergency stops is served until the session authenticates.
-    async fn serve_on<S>(self: &Arc<Self>, stream: S, link: LinkKind, mut reserved: bool)
+    /// authentication and emergency stops is served until the session authenticates (and
+    /// the connection is closed after anything else).
+    async fn serve_on<S>(self: &Arc<Self>, stream: S, link: LinkKind, reserved: bool)
     where
         S: AsyncRead + AsyncWrite + Send + 'static,
     {
         let (read, mut write) = tokio::io::split(stream);
-        let (replies, mut outgoing) = mpsc::channel::<PeerMessage>(REPLY_QUEUE);
+        let (replies, mut outgoing) = mpsc::channel::<Outgoing>(REPLY_QUEUE);
         let mut notifications = self.notifications.subscribe();
         let writer = tokio::spawn(async move {
+            let mut sealer = None;
             loop {
                 let message = tokio::select! {
                     reply = outgoing.recv() => match reply {
-                        Some(reply) => reply,
+                        Some((reply, fresh)) => {
+                            sealer = fresh.or(sealer);
+                            reply
+                        }
                         None => return,
                     },
                     note = notifications.recv() => match note {
@@ -189,45 +205,54 @@ impl SimPeer {
                         Err(broadcast::error::RecvError::Closed) => return,
                     },
                 };
-                if write_frame(&mut write, &message).await.is_err() {
+                if write_frame_sealed(&mut write, &message, sealer.as_mut())
+                    .await
+                    .is_err()
+                {
                     return;
                 }
             }
         });
         let mut reader = FrameReader::<_, Request>::new(read);
-        let mut session = Session::new(link);
-        'stream: while let Ok(Some(frame)) = reader.next().await {
-            let answers = match frame {
-                Ok(request) if reserved && !opens_reserved_slot(&request.command) => {
-                    let refusal = refusal(request.id, reserved_slot());
-                    let _ = replies.send(refusal).await;
+        let opened = tokio::time::Instant::now();
+        let wall_us = move || u64::try_from(opened.elapsed().as_micros()).unwrap_or(u64::MAX);
+        let mut session = Session::opened(link, 0);
+        if reserved {
+            session.keep_for_authentication();
+        }
+        'stream: loop {
+            let close = session
+                .close_at_us()
+                .map(|at| opened + Duration::from_micros(at));
+            let frame = tokio::select! {
+                frame = reader.next_checked(session.inbound()) => frame,
+                () = sleep_until_or_never(close) => {
+                    tracing::info!("closing a connection that did not authenticate in time");
                     break;
                 }
+            };
+            let Ok(Some(frame)) = frame else {
+                break;
+            };
+            let mut close_after = false;
+            let answers = match frame {
                 Ok(request) => {
-                    let answers = self.core().handle(&mut session, &request);
-                    if matches!(request.command, Command::AuthResponse { .. })
-                        && answers.iter().any(|answer| {
-                            matches!(
-                                answer,
-                                PeerMessage::Reply {
-                                    reply: Reply::Ok,
-                                    ..
-                                }
-                            )
-                        })
-                    {
-                        reserved = false;
-                    }
-                    answers
+                    session.heard(wall_us());
+                    close_after = session.refuses_on_reserved_slot(&request.command);
+                    self.core().handle(&mut session, &request)
                 }
                 Err(error) => self.core().link_error(error),
             };
             self.wake.notify_one();
+            let mut sealer = session.take_sealer();
             for answer in answers {
                 // Waits while the client is not reading: it is not read either then.
-                if replies.send(answer).await.is_err() {
+                if replies.send((answer, sealer.take())).await.is_err() {
                     break 'stream;
                 }
+            }
+            if close_after {
+                break;
             }
         }
         self.core().end_session(&mut session);
@@ -262,24 +287,6 @@ impl Drop for Slot {
     }
 }
 
-/// What a session on the reserved slot may send before it authenticates.
-fn opens_reserved_slot(command: &Command) -> bool {
-    matches!(
-        command,
-        Command::Hello { .. }
-            | Command::AuthChallenge
-            | Command::AuthResponse { .. }
-            | Command::EmergencyStop
-    )
-}
-
-fn reserved_slot() -> ErrorReply {
-    ErrorReply::new(
-        ErrorCode::BUSY,
-        format_args!("the last free client slot is kept for a client that authenticates"),
-    )
-}
-
 fn full(max_clients: usize) -> ErrorReply {
     ErrorReply::new(
         ErrorCode::BUSY,
@@ -306,6 +313,14 @@ async fn refuse(stream: TcpStream, max_clients: usize) {
         _ => PeerMessage::LinkError(full(max_clients)),
     };
     let _ = tokio::time::timeout(REFUSAL_WAIT, write_frame(&mut write, &message)).await;
+}
+
+/// Sleeps until `deadline`, or forever without one.
+async fn sleep_until_or_never(deadline: Option<tokio::time::Instant>) {
+    match deadline {
+        Some(deadline) => tokio::time::sleep_until(deadline).await,
+        None => std::future::pending().await,
+    }
 }
 
 fn lock<T>(mutex: &Mutex<T>) -> MutexGuard<'_, T> {

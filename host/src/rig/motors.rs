@@ -83,7 +83,7 @@ impl SimMotors {
                     port: address.port(),
                 };
                 let client_options = ClientOptions {
-                    key: Some(optalign_protocol::auth::derive_key(RIG_KEY)),
+                    key: Some(crate::link::AccessKey::passphrase(RIG_KEY)),
                     ..ClientOptions::default()
                 };
                 let client = Client::connect(endpoint, client_options).await?;

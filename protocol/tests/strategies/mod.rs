@@ -92,7 +92,8 @@ pub fn command() -> impl Strategy<Value = Command> {
             .prop_map(|(ssid, passphrase)| Command::ProvisionWifi { ssid, passphrase }),
         any::<[u8; 32]>().prop_map(|key| Command::SetKey { key }),
         Just(Command::AuthChallenge),
-        any::<[u8; 32]>().prop_map(|tag| Command::AuthResponse { tag }),
+        (any::<[u8; 32]>(), any::<[u8; 16]>())
+            .prop_map(|(tag, client_nonce)| Command::AuthResponse { tag, client_nonce }),
         Just(Command::ClearEmergency),
         any::<u32>().prop_map(|request| Command::MoveResult {
             request: RequestId(request)
@@ -185,7 +186,7 @@ pub fn reply() -> impl Strategy<Value = Reply> {
                 Just(BootRecord::InterruptedMove),
             ],
             (
-                any::<(bool, u32)>(),
+                any::<(bool, u32, u32, u32)>(),
                 prop_oneof![
                     Just(None),
                     Just(Some(StorageFailure::Write)),
@@ -198,7 +199,10 @@ pub fn reply() -> impl Strategy<Value = Reply> {
                     axes,
                     (trusted_link, authenticated, key_provisioned, emergency_stopped, uptime_ms),
                     boot,
-                    ((unsaved, failed_writes), last_failure),
+                    (
+                        (unsaved, failed_writes, failed_authentications, rejected_frames),
+                        last_failure,
+                    ),
                 )| {
                     Reply::Status(Status {
                         axes: axes.into_iter().collect(),
@@ -214,6 +218,10 @@ pub fn reply() -> impl Strategy<Value = Reply> {
                             unsaved,
                             failed_writes,
                             last_failure,
+                        },
+                        security: SecurityCounters {
+                            failed_authentications,
+                            rejected_frames,
                         },
                     })
                 }
