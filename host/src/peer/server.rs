@@ -16,8 +16,9 @@ use optalign_protocol::{Command, ErrorCode, ErrorReply, PeerMessage, Reply, Requ
 use tokio::io::{AsyncRead, AsyncWrite};
 use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::{Notify, broadcast, mpsc};
-use tokio::task::JoinHandle;
+use tokio::task::{JoinHandle, JoinSet};
 
+use super::bench::{self, Bench};
 use super::clock::TimeMode;
 use super::core::{PeerCore, PeerOptions};
 use crate::link::framed::{FrameReader, write_frame};
@@ -44,7 +45,15 @@ pub struct SimPeer {
 impl SimPeer {
     /// Builds the peer and starts its motion loop (it serves nothing until told to).
     pub fn start(options: &PeerOptions) -> anyhow::Result<Arc<Self>> {
-        let core = PeerCore::new(options)?;
+        Self::run(PeerCore::new(options)?, options)
+    }
+
+    /// Starts a controller on `bench`: after [`Self::kill`], on what the power cut left.
+    pub fn start_on_bench(options: &PeerOptions, bench: Bench) -> anyhow::Result<Arc<Self>> {
+        Self::run(PeerCore::on_bench(options, bench)?, options)
+    }
+
+    fn run(core: PeerCore, options: &PeerOptions) -> anyhow::Result<Arc<Self>> {
         let (notifications, _) = broadcast::channel(256);
         let peer = Arc::new(Self {
             core: Arc::new(Mutex::new(core)),
@@ -71,6 +80,22 @@ impl SimPeer {
     /// Locks the state (for in-process rigs and tests that read hidden truth).
     pub fn core(&self) -> MutexGuard<'_, PeerCore> {
         lock(&self.core)
+    }
+
+    /// Runs `command` as the serial link would (physical access, a session of its own),
+    /// waking the motion loop for a move it starts; returns the replies.
+    pub fn serial_request(&self, command: Command) -> Vec<PeerMessage> {
+        let replies = {
+            let mut core = self.core();
+            let mut session = core.serial_session();
+            let request = Request {
+                id: optalign_protocol::RequestId(rand::random()),
+                command,
+            };
+            core.handle(&mut session, &request)
+        };
+        self.wake.notify_one();
+        replies
     }
 
     /// Network connections open now.
@@ -118,7 +143,10 @@ impl SimPeer {
         super::registry::register(bound, self);
         let peer = self.clone();
         let accept = tokio::spawn(async move {
+            // Aborting this task (a shutdown or a power cut) drops every connection too.
+            let mut connections = JoinSet::new();
             loop {
+                while connections.try_join_next().is_some() {}
                 match listener.accept().await {
                     Ok((stream, remote)) => {
                         let _ = stream.set_nodelay(true);
@@ -129,7 +157,7 @@ impl SimPeer {
                         };
                         tracing::info!(%remote, reserved = slot.reserved, "client connected");
                         let peer = peer.clone();
-                        tokio::spawn(async move {
+                        connections.spawn(async move {
                             peer.serve_on(stream, LinkKind::Network, slot.reserved)
                                 .await;
                             drop(slot);
@@ -176,7 +204,7 @@ impl SimPeer {
         let (read, mut write) = tokio::io::split(stream);
         let (replies, mut outgoing) = mpsc::channel::<PeerMessage>(REPLY_QUEUE);
         let mut notifications = self.notifications.subscribe();
-        let writer = tokio::spawn(async move {
+        let mut writer = AbortOnDrop(tokio::spawn(async move {
             loop {
                 let message = tokio::select! {
                     reply = outgoing.recv() => match reply {
@@ -193,7 +221,7 @@ impl SimPeer {
                     return;
                 }
             }
-        });
+        }));
         let mut reader = FrameReader::<_, Request>::new(read);
         let mut session = Session::new(link);
         'stream: while let Ok(Some(frame)) = reader.next().await {
@@ -232,7 +260,20 @@ impl SimPeer {
         }
         self.core().end_session(&mut session);
         drop(replies);
-        let _ = writer.await;
+        let _ = (&mut writer.0).await;
+    }
+
+    /// Cuts the controller's power: it falls silent at once, the listener and every
+    /// connection close, and the bench comes back as the next start-up finds it (shafts
+    /// where they are, the flash as last written, a write cut short left torn).
+    pub fn kill(&self) -> Bench {
+        let bench = {
+            let mut core = self.core();
+            core.cut_power();
+            bench::lock(core.bench()).power_cycled()
+        };
+        self.shutdown();
+        bench
     }
 
     /// Stops serving and stepping.
@@ -246,6 +287,15 @@ impl SimPeer {
 impl Drop for SimPeer {
     fn drop(&mut self) {
         self.shutdown();
+    }
+}
+
+/// A task that ends with its owner (a connection's writer ends with the connection).
+struct AbortOnDrop(JoinHandle<()>);
+
+impl Drop for AbortOnDrop {
+    fn drop(&mut self) {
+        self.0.abort();
     }
 }
 
