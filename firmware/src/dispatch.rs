@@ -233,6 +233,11 @@ impl<S: Storage> Controller<S> {
         let Some(key) = self.key else {
             return Err(no_key());
         };
+        // A repeat of the response that authenticated this session (a duplicated frame
+        // whose first answer was lost) is answered as the first was; it changes nothing.
+        if session.nonce.is_none() && session.authenticated == Some(self.key_epoch) {
+            return Ok(Reply::Ok);
+        }
         // A nonce answers one response, right or wrong.
         let Some((_, nonce)) = session.nonce.take() else {
             return Err(error_reply!(
