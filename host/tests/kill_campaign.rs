@@ -82,7 +82,12 @@ impl Controller {
     async fn start() -> Arc<Self> {
         let options = peer_options();
         let (peer, address) = SimPeer::start_on_loopback(&options).await.unwrap();
-        peer.core().bench().lock().unwrap().audit_positions();
+        {
+            let core = peer.core();
+            let mut bench = core.bench().lock().unwrap();
+            bench.audit_positions();
+            bench.keep_log();
+        }
         let controller = Arc::new(Self {
             options,
             address,
@@ -338,7 +343,7 @@ fn check_report(
     let peer = controller.peer();
     let core = peer.core();
     let bench = core.bench().lock().unwrap();
-    let log = bench.log();
+    let log = bench.log().expect("the log is kept");
     assert_eq!(log.starts(id.0), 1, "{id:?} {command:?} started once");
     let finish = log.finish(id.0);
     assert_eq!(
@@ -418,7 +423,8 @@ async fn campaign(seed: u64, moves: usize) -> (Figures, String) {
     let peer = controller.peer();
     let core = peer.core();
     let bench = core.bench().lock().unwrap();
-    let twice = bench.log().started_twice();
+    let log = bench.log().expect("the log is kept");
+    let twice = log.started_twice();
     assert!(twice.is_empty(), "seed {seed:#x}: started twice: {twice:?}");
     let audit = bench.audit().expect("the audit runs");
     assert!(
@@ -432,7 +438,7 @@ async fn campaign(seed: u64, moves: usize) -> (Figures, String) {
         "seed {seed:#x}: {figures:?}; moves started {}, statuses audited {}, kills {kills} \
          ({torn} in a flash write), stops refused {}, serial stops {}, emergency stops {}; \
          proxy: {}",
-        bench.log().total_starts(),
+        log.total_starts(),
         audit.checked,
         observed.stops_refused.load(Ordering::Relaxed),
         observed.serial_stops.load(Ordering::Relaxed),

@@ -74,6 +74,7 @@ async fn until(what: &str, mut done: impl FnMut() -> bool) {
 async fn a_power_cut_mid_move_leaves_the_shaft_where_it_was_and_the_axis_flagged() {
     let options = options(TimeMode::Scaled(1.0));
     let peer = SimPeer::start(&options).unwrap();
+    peer.core().bench().lock().unwrap().keep_log();
     move_axis_0(&peer, 20_000);
     until("steps are made", || peer.shaft_positions()[0] > 50).await;
     let bench = peer.kill();
@@ -96,7 +97,14 @@ async fn a_power_cut_mid_move_leaves_the_shaft_where_it_was_and_the_axis_flagged
     assert!(status.axes[0].faults.has(Faults::POSITION_LOST));
     assert!(!status.axes[1].faults.has(Faults::POSITION_LOST));
     assert!(status.axes.iter().all(|axis| !axis.powered));
-    let log = second.core().bench().lock().unwrap().log().total_starts();
+    let log = second
+        .core()
+        .bench()
+        .lock()
+        .unwrap()
+        .log()
+        .unwrap()
+        .total_starts();
     assert_eq!(log, 1, "the log of executions survives the cut");
 }
 

@@ -6,9 +6,9 @@
 //! process with state files saves the mounts and the flash apart, mounts first, so a
 //! process killed at any instant leaves the two files as a power cut leaves a bench.
 //!
-//! For the kill campaign the bench also keeps a log of the moves the controller really
-//! started and finished, checks every `Status` the controller gives against the true
-//! shafts (when asked to), and can cut the power in the middle of a flash write.
+//! For the kill campaign the bench can also keep a log of the moves the controller really
+//! started and finished, check every `Status` the controller gives against the true
+//! shafts, and cut the power in the middle of a flash write (each only when asked to).
 //!
 //! [`SimPeer`]: super::SimPeer
 
@@ -26,7 +26,7 @@ pub struct Bench {
     mounts: SimDriver,
     flash: RamStorage,
     files: Option<StateFiles>,
-    log: ExecutionLog,
+    log: Option<ExecutionLog>,
     audit: Option<PositionAudit>,
     /// A power cut armed for a coming slot write: (writes to let through, bytes kept).
     cut_in_write: Option<(u32, usize)>,
@@ -39,7 +39,7 @@ impl Bench {
             mounts,
             flash,
             files,
-            log: ExecutionLog::default(),
+            log: None,
             audit: None,
             cut_in_write: None,
         }
@@ -86,13 +86,19 @@ impl Bench {
         self.cut_in_write = Some((writes, bytes));
     }
 
-    /// Moves started and finished, over every start-up on this bench.
-    pub fn log(&self) -> &ExecutionLog {
-        &self.log
+    /// Logs every move started and how it ended from now on, over every start-up on this
+    /// bench (for tests: the log grows with every move).
+    pub fn keep_log(&mut self) {
+        self.log.get_or_insert_with(ExecutionLog::default);
     }
 
-    pub(crate) fn log_mut(&mut self) -> &mut ExecutionLog {
-        &mut self.log
+    /// The moves started and finished, if the log is kept.
+    pub fn log(&self) -> Option<&ExecutionLog> {
+        self.log.as_ref()
+    }
+
+    pub(crate) fn log_mut(&mut self) -> Option<&mut ExecutionLog> {
+        self.log.as_mut()
     }
 
     /// Checks every `Status` from now on against the true shafts: a position that differs

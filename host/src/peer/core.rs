@@ -183,14 +183,18 @@ impl PeerCore {
         let is_move = matches!(
             request.command,
             Command::MoveTo { .. } | Command::MoveBy { .. }
-        );
+        ) && bench::lock(&self.bench).log().is_some();
         let known_before = is_move && self.move_known(request.id);
         let mut out = Vec::new();
         let now = self.clock.now_us();
         self.controller
             .handle(session, request, now, &mut OsRandom, &mut |m| out.push(m));
-        if is_move && !known_before && self.move_known(request.id) {
-            bench::lock(&self.bench).log_mut().started(request.id.0);
+        if is_move
+            && !known_before
+            && self.move_known(request.id)
+            && let Some(log) = bench::lock(&self.bench).log_mut()
+        {
+            log.started(request.id.0);
         }
         if let [
             PeerMessage::Reply {
@@ -236,16 +240,16 @@ impl PeerCore {
         if let Err(error) = bench.save_mounts() {
             tracing::error!(%error, "cannot write the peer's mounts file");
         }
-        for message in &out {
-            if let PeerMessage::Notify(Notification::MoveFinished {
-                request,
-                outcome,
-                positions,
-            }) = message
-            {
-                bench
-                    .log_mut()
-                    .finished(request.0, *outcome, positions.to_vec());
+        if let Some(log) = bench.log_mut() {
+            for message in &out {
+                if let PeerMessage::Notify(Notification::MoveFinished {
+                    request,
+                    outcome,
+                    positions,
+                }) = message
+                {
+                    log.finished(request.0, *outcome, positions.to_vec());
+                }
             }
         }
         out
