@@ -147,14 +147,14 @@ enum Mutation {
 fn mutation() -> impl Strategy<Value = Mutation> {
     let at = any::<usize>();
     prop_oneof![
-        3 => (at.clone(), 0u8..8).prop_map(|(at, bit)| Mutation::FlipBit { at, bit }),
-        2 => (at.clone(), any::<u8>()).prop_map(|(at, byte)| Mutation::SetByte { at, byte }),
-        4 => (at.clone(), 0..TOKENS.len()).prop_map(|(at, token)| Mutation::Insert { at, token }),
-        2 => (at.clone(), 1usize..40).prop_map(|(at, len)| Mutation::Delete { at, len }),
-        1 => (at.clone(), 1usize..40, 2usize..50)
+        3 => (at, 0u8..8).prop_map(|(at, bit)| Mutation::FlipBit { at, bit }),
+        2 => (at, any::<u8>()).prop_map(|(at, byte)| Mutation::SetByte { at, byte }),
+        4 => (at, 0..TOKENS.len()).prop_map(|(at, token)| Mutation::Insert { at, token }),
+        2 => (at, 1usize..40).prop_map(|(at, len)| Mutation::Delete { at, len }),
+        1 => (at, 1usize..40, 2usize..50)
             .prop_map(|(at, len, times)| Mutation::Repeat { at, len, times }),
-        1 => at.clone().prop_map(|at| Mutation::Truncate { at }),
-        2 => (at.clone(), any::<usize>(), any::<usize>(), 1usize..200)
+        1 => at.prop_map(|at| Mutation::Truncate { at }),
+        2 => (at, any::<usize>(), any::<usize>(), 1usize..200)
             .prop_map(|(at, seed, from, len)| Mutation::Splice { at, seed, from, len }),
         1 => (at, 1usize..300).prop_map(|(at, depth)| Mutation::Nest { at, depth }),
     ]
