@@ -136,6 +136,12 @@ impl RamStorage {
         self.tear_after = Some(bytes);
     }
 
+    /// Whether the power failed in a torn write (nothing is stored until
+    /// [`Self::power_cycled`]).
+    pub fn power_failed(&self) -> bool {
+        self.dead
+    }
+
     /// Makes every erase and write fail (or succeed again).
     pub fn set_failing(&mut self, failing: bool) {
         self.failing = failing;

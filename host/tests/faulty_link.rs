@@ -450,3 +450,89 @@ async fn a_lost_authentication_reply_does_not_leave_the_client_unauthenticated()
     assert_eq!(report.positions, [120]);
     assert_eq!(peer.shaft_positions(), [120]);
 }
+
+/// A client that has reconnected and is refused `busy` (its old connection may still hold
+/// control, half-open) sends the move again once the old session ends, and it runs once.
+#[tokio::test]
+async fn a_reconnected_client_refused_busy_waits_for_the_old_session_to_end() {
+    let (peer, address) = SimPeer::start_on_loopback(&PeerOptions {
+        axes: 1,
+        key: Some(KEY.into()),
+        time: TimeMode::Instant,
+        ..PeerOptions::default()
+    })
+    .await
+    .unwrap();
+    let options = ClientOptions {
+        key: Some(optalign::link::AccessKey::passphrase(KEY)),
+        request_timeout: Duration::from_millis(200),
+        attempts: 10,
+        ..ClientOptions::default()
+    };
+    let url = format!("tcp://{address}");
+    // Stands for the old connection the controller still believes in: it holds control.
+    let old = Client::connect(url.parse().unwrap(), options.clone())
+        .await
+        .unwrap();
+    old.move_by(&[AxisValue { axis: 0, steps: 10 }])
+        .await
+        .unwrap();
+    let client = Client::connect(url.parse().unwrap(), options)
+        .await
+        .unwrap();
+    client.disconnect().await;
+    let release = async {
+        tokio::time::sleep(Duration::from_millis(500)).await;
+        drop(old);
+    };
+    let id = client.next_request_id();
+    let command = Command::MoveBy {
+        deltas: [AxisValue { axis: 0, steps: 90 }].into_iter().collect(),
+    };
+    let (report, ()) = tokio::join!(client.run_move_with_id(id, command), release);
+    let report = report.expect("the move runs once the old session has ended");
+    assert_eq!(report.positions, [100]);
+    assert_eq!(peer.shaft_positions(), [100]);
+}
+
+/// A client that never reconnected and is refused `busy` reports it at once: another
+/// client really controls the controller.
+#[tokio::test]
+async fn a_client_refused_busy_on_its_first_connection_reports_it_at_once() {
+    let (_peer, address) = SimPeer::start_on_loopback(&PeerOptions {
+        axes: 1,
+        key: Some(KEY.into()),
+        time: TimeMode::Instant,
+        ..PeerOptions::default()
+    })
+    .await
+    .unwrap();
+    let options = ClientOptions {
+        key: Some(optalign::link::AccessKey::passphrase(KEY)),
+        request_timeout: Duration::from_millis(200),
+        attempts: 10,
+        ..ClientOptions::default()
+    };
+    let url = format!("tcp://{address}");
+    let holder = Client::connect(url.parse().unwrap(), options.clone())
+        .await
+        .unwrap();
+    holder
+        .move_by(&[AxisValue { axis: 0, steps: 10 }])
+        .await
+        .unwrap();
+    let other = Client::connect(url.parse().unwrap(), options)
+        .await
+        .unwrap();
+    let started = std::time::Instant::now();
+    let error = other
+        .move_by(&[AxisValue { axis: 0, steps: 5 }])
+        .await
+        .unwrap_err();
+    assert_eq!(error.code(), Some(ErrorCode::BUSY), "{error}");
+    assert!(
+        started.elapsed() < Duration::from_millis(200),
+        "{:?}",
+        started.elapsed()
+    );
+}

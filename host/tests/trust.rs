@@ -151,6 +151,15 @@ async fn a_peer_killed_mid_move_comes_back_with_the_position_lost_until_re_zeroe
     assert!(client.status().await.unwrap().axes[0].moving);
     first.kill().await.unwrap();
     drop(client);
+    // The mounts are kept apart from the flash: the shaft stopped where the power went.
+    let mounts: Vec<optalign_firmware::sim::MountModel> =
+        serde_json::from_slice(&std::fs::read(dir.path().join("peer.json.mounts.json")).unwrap())
+            .unwrap();
+    let shaft = mounts[0].mirror_position();
+    assert!(
+        (1..20_000).contains(&shaft),
+        "the shaft stopped mid-way: {shaft}"
+    );
 
     let (_second, url) = peer_process(&state).await;
     let status = optalign(&url, &["status"]).await;

@@ -24,13 +24,18 @@ use crate::record::{self, AxisRecord, RECORD_LEN, Record};
 use crate::sim::MountModel;
 use crate::{RamStorage, Session};
 
-fn fuzz_runner() -> TestRunner {
-    let cases = match std::env::var("OPTALIGN_FUZZ_CASES") {
+/// `OPTALIGN_FUZZ_CASES` cases per property, `default` without it.
+pub(super) fn fuzz_cases(default: u32) -> u32 {
+    match std::env::var("OPTALIGN_FUZZ_CASES") {
         Ok(text) => text
             .parse()
             .unwrap_or_else(|_| panic!("OPTALIGN_FUZZ_CASES must be a whole number, got {text:?}")),
-        Err(_) => 1_000,
-    };
+        Err(_) => default,
+    }
+}
+
+fn fuzz_runner() -> TestRunner {
+    let cases = fuzz_cases(1_000);
     TestRunner::new(ProptestConfig {
         cases,
         failure_persistence: None,

@@ -1,4 +1,6 @@
-//! Random request sequences: the controller never panics and keeps its invariants.
+//! Random request sequences from three sessions (serial, network with and without the
+//! key): the controller never panics and keeps its invariants. 192 sequences by default,
+//! `OPTALIGN_FUZZ_CASES=N` for N.
 
 use optalign_protocol::{
     Approach, AxisConfig, AxisValue, BacklashMode, Command, DriverKind, FrameError, MAX_AXES,
@@ -133,7 +135,7 @@ fn event() -> impl Strategy<Value = Event> {
 fn random_requests_never_panic() {
     let moves = Cell::new(0);
     let mut runner = TestRunner::new(ProptestConfig {
-        cases: 192,
+        cases: super::hostile::fuzz_cases(192),
         failure_persistence: None,
         ..ProptestConfig::default()
     });

@@ -27,7 +27,8 @@ pub struct PeerArgs {
     /// Access key to provision at start (as `optalign provision --key` would over serial).
     #[arg(long, env = "OPTALIGN_PEER_KEY", hide_env_values = true)]
     key: Option<String>,
-    /// File that keeps the controller's flash record and the mount state across restarts.
+    /// File that keeps the controller's flash image across restarts; the mounts' true
+    /// state is kept apart in FILE.mounts.json, so a killed peer is a faithful power cut.
     #[arg(long, value_name = "FILE")]
     state: Option<PathBuf>,
     /// Simulated time runs this many times faster than real time; 0 completes moves instantly.

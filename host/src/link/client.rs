@@ -31,7 +31,7 @@ use std::time::Duration;
 use optalign_protocol::auth::{self, Key};
 use optalign_protocol::seal::{Direction, Inbound, Opener, Sealer};
 use optalign_protocol::{
-    AxisConfig, AxisValue, Command, ErrorCode, ErrorReply, FrameError, Identity, MAX_AXES,
+    Access, AxisConfig, AxisValue, Command, ErrorCode, ErrorReply, FrameError, Identity, MAX_AXES,
     MoveOutcome, MoveResult, Notification, PROTOCOL_VERSION, PeerMessage, Reply, Request,
     RequestId, Status,
 };
@@ -207,6 +207,8 @@ pub struct Client {
     identity: Mutex<Option<Identity>>,
     /// The key derived for the board last connected to, and that board's id.
     derived: Mutex<Option<(u64, Key)>>,
+    /// Connections established so far (a reconnect makes it more than one).
+    connections: AtomicU32,
 }
 
 impl Client {
@@ -222,6 +224,7 @@ impl Client {
             next_id: AtomicU32::new(rand::random()),
             identity: Mutex::new(None),
             derived: Mutex::new(None),
+            connections: AtomicU32::new(0),
         };
         {
             let mut connection = client.connection.lock().await;
@@ -289,6 +292,19 @@ impl Client {
                     self.disconnect().await;
                     last_error = Some(ClientError::Rejected(error));
                 }
+                Ok(Reply::Error(error))
+                    if self.own_old_connection_may_control(&request, &error) =>
+                {
+                    // Our previous connection may still hold control: the controller has
+                    // not yet seen it close (a half-open TCP connection). The refusal ran
+                    // nothing and is never cached, so the same id is sent again later.
+                    tracing::debug!(
+                        ?id,
+                        "busy after a reconnect; waiting for the old session to end"
+                    );
+                    tokio::time::sleep(self.options.request_timeout).await;
+                    last_error = Some(ClientError::Rejected(error));
+                }
                 Ok(Reply::Error(error)) => return Err(ClientError::Rejected(error)),
                 Ok(reply) => return Ok(reply),
                 Err(
@@ -301,17 +317,34 @@ impl Client {
                 }
                 Err(error) => {
                     tracing::debug!(?id, %error, "retrying request");
+                    if matches!(error, ClientError::Io { .. } | ClientError::Connect { .. }) {
+                        // The link failed at once (a controller restarting refuses or drops
+                        // connections): wait as long as for a reply, so the attempts span
+                        // the restart instead of being spent in a few milliseconds.
+                        tokio::time::sleep(self.options.request_timeout).await;
+                    }
                     last_error = Some(error);
                 }
             }
         }
         Err(match last_error {
             Some(error @ (ClientError::Connect { .. } | ClientError::SendTimeout { .. })) => error,
+            Some(ClientError::Rejected(error)) if error.code == ErrorCode::BUSY => {
+                ClientError::Rejected(error)
+            }
             _ => ClientError::Timeout {
                 endpoint: self.endpoint.clone(),
                 attempts: self.options.attempts.max(1),
             },
         })
+    }
+
+    /// Whether `error` may be our own earlier connection still holding control: a control
+    /// command refused `busy` by a client that has reconnected.
+    fn own_old_connection_may_control(&self, request: &Request, error: &ErrorReply) -> bool {
+        error.code == ErrorCode::BUSY
+            && request.command.access() == Access::Control
+            && self.connections.load(Ordering::Relaxed) > 1
     }
 
     /// One attempt: (re)connect if needed, send, wait for the reply or the timeout.
@@ -430,6 +463,9 @@ impl Client {
             sealer: None,
         });
         let established = self.establish(slot).await;
+        if established.is_ok() {
+            self.connections.fetch_add(1, Ordering::Relaxed);
+        }
         if established.is_err() {
             // A connection whose handshake or authentication failed must not be reused:
             // the next attempt would send on a session without access.

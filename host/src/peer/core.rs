@@ -1,16 +1,21 @@
-//! The peer's state machine: firmware controller + simulated mounts + clock, with the
-//! state file kept in step with the controller's persisted record.
+//! The peer's state machine: firmware controller + simulated bench (mounts and flash
+//! chip, see [`super::bench`]) + clock. When its power is cut in a flash write it falls
+//! silent, as a board without power does.
 
 use std::path::PathBuf;
+use std::sync::{Arc, Mutex};
 
 use anyhow::Context;
-use optalign_firmware::sim::SimDriver;
 use optalign_firmware::{BoardInfo, Controller, LinkKind, RamStorage, RngSource, Session};
-use optalign_protocol::{Capabilities, Command, FrameError, PeerMessage, Request, RequestId};
+use optalign_protocol::{
+    Capabilities, Command, FrameError, MoveResult, Notification, PeerMessage, Reply, Request,
+    RequestId,
+};
 
+use super::bench::{self, Bench, FlashPort, MountsPort, SharedBench};
 use super::clock::{SimClock, TimeMode};
 use super::mechanics::MechanicsOptions;
-use super::state_file::StateFile;
+use super::state_file::StateFiles;
 use crate::link::AccessKey;
 
 /// How a simulated peer is set up.
@@ -22,7 +27,8 @@ pub struct PeerOptions {
     /// Access key as a client gives it (a passphrase, stretched for this peer's board id,
     /// or `hex:` and the derived key), provisioned at start-up as if over the serial link.
     pub key: Option<String>,
-    /// Where the controller's persisted record and the true mount state survive restarts.
+    /// The controller's flash image survives restarts in this file, the true mount state in
+    /// `FILE.mounts.json` beside it.
     pub state_file: Option<PathBuf>,
     pub time: TimeMode,
     /// Network clients served at once (at least 2); the last free slot is kept for a
@@ -58,15 +64,49 @@ impl RngSource for OsRandom {
 
 /// Everything one simulated controller is.
 pub struct PeerCore {
-    controller: Controller<RamStorage>,
-    mounts: SimDriver,
+    controller: Controller<FlashPort>,
+    bench: SharedBench,
     clock: SimClock,
-    state_file: Option<StateFile>,
-    axes: u8,
+    /// A session of the peer's own, to ask the controller about move outcomes.
+    probe: Session,
+    /// The power failed (in a torn flash write): nothing is answered or stepped any more.
+    off: bool,
+}
+
+impl PeerOptions {
+    /// The bench the options describe: from the state files when they exist, otherwise a
+    /// fresh board on new mounts.
+    pub fn bench(&self) -> anyhow::Result<Bench> {
+        let Some(path) = &self.state_file else {
+            let mounts = self.mechanics.driver(self.axes);
+            return Ok(Bench::new(mounts, RamStorage::new(), None));
+        };
+        let mut files = StateFiles::new(path.clone());
+        let saved = files
+            .load()
+            .with_context(|| format!("reading peer state {}", path.display()))?;
+        let (mounts, flash) = match saved {
+            Some(saved) => (
+                match saved.mounts {
+                    Some(mounts) => optalign_firmware::sim::SimDriver::new(mounts),
+                    None => self.mechanics.driver(self.axes),
+                },
+                saved.flash,
+            ),
+            None => (self.mechanics.driver(self.axes), RamStorage::new()),
+        };
+        Ok(Bench::new(mounts, flash, Some(files)))
+    }
 }
 
 impl PeerCore {
+    /// A controller starting up on the bench `options` describe.
     pub fn new(options: &PeerOptions) -> anyhow::Result<Self> {
+        Self::on_bench(options, options.bench()?)
+    }
+
+    /// A controller starting up on `bench` (after a power cut, [`Bench::power_cycled`]).
+    pub fn on_bench(options: &PeerOptions, bench: Bench) -> anyhow::Result<Self> {
         anyhow::ensure!(
             (1..=optalign_protocol::MAX_AXES as u8).contains(&options.axes),
             "--axes must be 1..={}, got {}",
@@ -78,22 +118,9 @@ impl PeerCore {
             "--max-clients must be at least 2 (one slot is kept for a controlling client), got {}",
             options.max_clients
         );
-        let state_file = options.state_file.clone().map(StateFile::new);
-        let saved = match &state_file {
-            Some(file) => file
-                .load()
-                .with_context(|| format!("reading peer state {}", file.path().display()))?,
-            None => None,
-        };
         let clock = SimClock::new(options.time);
-        let (mounts, storage) = match saved {
-            Some(saved) => (
-                SimDriver::new(saved.mounts),
-                RamStorage::from_bytes(&saved.flash),
-            ),
-            None => (options.mechanics.driver(options.axes), RamStorage::new()),
-        };
         let board_id = 0x5157_0000_0000_0000 | u64::from(options.axes);
+        let bench = Arc::new(Mutex::new(bench));
         let info = BoardInfo {
             board: "optalign-sim-peer",
             firmware_version: env!("CARGO_PKG_VERSION"),
@@ -105,14 +132,16 @@ impl PeerCore {
                 | Capabilities::SERIAL
                 | Capabilities::SIMULATED,
         };
-        let controller = Controller::new(info, storage, clock.now_us(), &mut OsRandom);
+        let flash = FlashPort(bench.clone());
+        let controller = Controller::new(info, flash, clock.now_us(), &mut OsRandom);
         let mut core = Self {
             controller,
-            mounts,
+            bench,
             clock,
-            state_file,
-            axes: options.axes,
+            probe: Session::new(LinkKind::Serial),
+            off: false,
         };
+        core.probe = core.serial_session();
         if let Some(text) = &options.key {
             let access: AccessKey = text.parse().context("reading the peer's --key")?;
             core.provision_key(access.for_board(board_id))?;
@@ -158,6 +187,9 @@ impl PeerCore {
     /// authentication attempt during the backoff after failures moves it to the backoff's
     /// end, so the backoff costs no wall-clock time there (scaled time keeps it real).
     pub fn handle(&mut self, session: &mut Session, request: &Request) -> Vec<PeerMessage> {
+        if self.off {
+            return Vec::new();
+        }
         if self.clock.mode() == TimeMode::Instant
             && matches!(
                 request.command,
@@ -167,11 +199,78 @@ impl PeerCore {
             self.clock
                 .jump_to(self.controller.authentication_reopens_at_us());
         }
+        let is_move = matches!(
+            request.command,
+            Command::MoveTo { .. } | Command::MoveBy { .. }
+        ) && bench::lock(&self.bench).log().is_some();
+        let known_before = is_move && self.move_known(request.id);
         let mut out = Vec::new();
         let now = self.clock.now_us();
         self.controller
             .handle(session, request, now, &mut OsRandom, &mut |m| out.push(m));
-        self.save_if_changed();
+        if is_move
+            && !known_before
+            && self.move_known(request.id)
+            && let Some(log) = bench::lock(&self.bench).log_mut()
+        {
+            log.started(request.id.0);
+        }
+        if let [
+            PeerMessage::Reply {
+                reply: Reply::Status(status),
+                ..
+            },
+        ] = out.as_slice()
+        {
+            bench::lock(&self.bench).check_status(status);
+        }
+        self.after_call(out)
+    }
+
+    /// Whether the controller has started the move of `request` (its outcome is known):
+    /// a move request that turns it from unknown to known was executed, not replayed.
+    fn move_known(&mut self, request: RequestId) -> bool {
+        let ask = Request {
+            id: RequestId(0),
+            command: Command::MoveResult { request },
+        };
+        let mut known = false;
+        let now = self.clock.now_us();
+        self.controller
+            .handle(&mut self.probe, &ask, now, &mut OsRandom, &mut |message| {
+                known |= !matches!(
+                    message,
+                    PeerMessage::Reply {
+                        reply: Reply::MoveResult(MoveResult::Unknown),
+                        ..
+                    }
+                );
+            });
+        known
+    }
+
+    /// What a call sends, unless the power failed during it.
+    fn after_call(&mut self, out: Vec<PeerMessage>) -> Vec<PeerMessage> {
+        let mut bench = bench::lock(&self.bench);
+        if bench.power_failed() {
+            self.off = true;
+            return Vec::new();
+        }
+        if let Err(error) = bench.save_mounts() {
+            tracing::error!(%error, "cannot write the peer's mounts file");
+        }
+        if let Some(log) = bench.log_mut() {
+            for message in &out {
+                if let PeerMessage::Notify(Notification::MoveFinished {
+                    request,
+                    outcome,
+                    positions,
+                }) = message
+                {
+                    log.finished(request.0, *outcome, positions.to_vec());
+                }
+            }
+        }
         out
     }
 
@@ -183,6 +282,9 @@ impl PeerCore {
     /// Answers an unreadable frame from `session`.
     pub fn link_error(&mut self, error: FrameError) -> Vec<PeerMessage> {
         let mut out = Vec::new();
+        if self.off {
+            return out;
+        }
         self.controller.link_error(error, &mut |m| out.push(m));
         out
     }
@@ -190,12 +292,20 @@ impl PeerCore {
     /// Runs every step due now; returns notifications for all sessions and the next
     /// deadline (simulated µs) at which `poll` must run again.
     pub fn poll(&mut self) -> (Vec<PeerMessage>, Option<u64>) {
+        if self.off {
+            return (Vec::new(), None);
+        }
         let mut out = Vec::new();
         let now = self.clock.now_us();
-        self.controller
-            .poll(now, &mut self.mounts, &mut |m| out.push(m));
-        self.save_if_changed();
-        (out, self.controller.next_deadline_us())
+        let mut mounts = MountsPort(&self.bench);
+        self.controller.poll(now, &mut mounts, &mut |m| out.push(m));
+        let out = self.after_call(out);
+        let next = if self.off {
+            None
+        } else {
+            self.controller.next_deadline_us()
+        };
+        (out, next)
     }
 
     /// In instant mode: runs simulated time forward until no motion is pending.
@@ -226,29 +336,33 @@ impl PeerCore {
     }
 
     pub fn is_moving(&self) -> bool {
-        self.controller.is_moving()
+        !self.off && self.controller.is_moving()
+    }
+
+    /// Whether the power failed (in a torn flash write): the controller is silent.
+    pub fn is_off(&self) -> bool {
+        self.off
+    }
+
+    /// Cuts the power now: nothing is answered or stepped any more. The bench stays as it
+    /// is (see [`Self::bench`]).
+    pub fn cut_power(&mut self) {
+        self.off = true;
+    }
+
+    /// The bench this controller runs on.
+    pub fn bench(&self) -> &SharedBench {
+        &self.bench
     }
 
     /// True shaft positions of the mounts, in steps: hidden truth for scenes and tests.
     pub fn shaft_positions(&self) -> Vec<i32> {
-        (0..self.axes)
-            .filter_map(|axis| self.mounts.mount(axis))
-            .map(|m| m.mirror_position())
-            .collect()
+        bench::lock(&self.bench).shaft_positions()
     }
 
     /// Whether the coils of `axis` are energised (seen from the mount side).
     pub fn coils_powered(&self, axis: u8) -> bool {
-        self.mounts.is_powered(axis)
-    }
-
-    fn save_if_changed(&mut self) {
-        if let Some(file) = &mut self.state_file
-            && let Err(error) =
-                file.save_if_changed(self.controller.storage(), &self.mounts, self.axes)
-        {
-            tracing::error!(%error, path = %file.path().display(), "cannot write peer state file");
-        }
+        bench::lock(&self.bench).mounts().is_powered(axis)
     }
 }
 

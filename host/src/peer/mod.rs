@@ -5,6 +5,7 @@
 //! steps, a binding region), so backlash compensation, limits and faults behave as they
 //! will on hardware; the true shaft positions are hidden truth for the optical scenes.
 
+mod bench;
 mod clock;
 mod core;
 mod mechanics;
@@ -12,7 +13,9 @@ pub mod registry;
 mod server;
 mod state_file;
 
+pub use bench::{Bench, ExecutionLog, PositionAudit, SharedBench};
 pub use clock::{SimClock, TimeMode};
 pub use core::{PeerCore, PeerOptions};
 pub use mechanics::{MechanicsOptions, StallRegion};
 pub use server::SimPeer;
+pub use state_file::StateFiles;

@@ -19,12 +19,13 @@ use std::time::Duration;
 
 use optalign_firmware::{LinkKind, Session};
 use optalign_protocol::seal::Sealer;
-use optalign_protocol::{ErrorCode, ErrorReply, PeerMessage, Reply, Request};
+use optalign_protocol::{Command, ErrorCode, ErrorReply, PeerMessage, Reply, Request};
 use tokio::io::{AsyncRead, AsyncWrite};
 use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::{Notify, broadcast, mpsc};
-use tokio::task::JoinHandle;
+use tokio::task::{JoinHandle, JoinSet};
 
+use super::bench::{self, Bench};
 use super::clock::TimeMode;
 use super::core::{PeerCore, PeerOptions};
 use crate::link::framed::{FrameReader, write_frame, write_frame_sealed};
@@ -55,7 +56,15 @@ pub struct SimPeer {
 impl SimPeer {
     /// Builds the peer and starts its motion loop (it serves nothing until told to).
     pub fn start(options: &PeerOptions) -> anyhow::Result<Arc<Self>> {
-        let core = PeerCore::new(options)?;
+        Self::run(PeerCore::new(options)?, options)
+    }
+
+    /// Starts a controller on `bench`: after [`Self::kill`], on what the power cut left.
+    pub fn start_on_bench(options: &PeerOptions, bench: Bench) -> anyhow::Result<Arc<Self>> {
+        Self::run(PeerCore::on_bench(options, bench)?, options)
+    }
+
+    fn run(core: PeerCore, options: &PeerOptions) -> anyhow::Result<Arc<Self>> {
         let (notifications, _) = broadcast::channel(256);
         let peer = Arc::new(Self {
             core: Arc::new(Mutex::new(core)),
@@ -82,6 +91,22 @@ impl SimPeer {
     /// Locks the state (for in-process rigs and tests that read hidden truth).
     pub fn core(&self) -> MutexGuard<'_, PeerCore> {
         lock(&self.core)
+    }
+
+    /// Runs `command` as the serial link would (physical access, a session of its own),
+    /// waking the motion loop for a move it starts; returns the replies.
+    pub fn serial_request(&self, command: Command) -> Vec<PeerMessage> {
+        let replies = {
+            let mut core = self.core();
+            let mut session = core.serial_session();
+            let request = Request {
+                id: optalign_protocol::RequestId(rand::random()),
+                command,
+            };
+            core.handle(&mut session, &request)
+        };
+        self.wake.notify_one();
+        replies
     }
 
     /// Network connections open now.
@@ -129,7 +154,10 @@ impl SimPeer {
         super::registry::register(bound, self);
         let peer = self.clone();
         let accept = tokio::spawn(async move {
+            // Aborting this task (a shutdown or a power cut) drops every connection too.
+            let mut connections = JoinSet::new();
             loop {
+                while connections.try_join_next().is_some() {}
                 match listener.accept().await {
                     Ok((stream, remote)) => {
                         let _ = stream.set_nodelay(true);
@@ -140,7 +168,7 @@ impl SimPeer {
                         };
                         tracing::info!(%remote, reserved = slot.reserved, "client connected");
                         let peer = peer.clone();
-                        tokio::spawn(async move {
+                        connections.spawn(async move {
                             peer.serve_on(stream, LinkKind::Network, slot.reserved)
                                 .await;
                             drop(slot);
@@ -188,7 +216,7 @@ impl SimPeer {
         let (read, mut write) = tokio::io::split(stream);
         let (replies, mut outgoing) = mpsc::channel::<Outgoing>(REPLY_QUEUE);
         let mut notifications = self.notifications.subscribe();
-        let writer = tokio::spawn(async move {
+        let mut writer = AbortOnDrop(tokio::spawn(async move {
             let mut sealer = None;
             loop {
                 let message = tokio::select! {
@@ -212,7 +240,7 @@ impl SimPeer {
                     return;
                 }
             }
-        });
+        }));
         let mut reader = FrameReader::<_, Request>::new(read);
         let opened = tokio::time::Instant::now();
         let wall_us = move || u64::try_from(opened.elapsed().as_micros()).unwrap_or(u64::MAX);
@@ -257,7 +285,20 @@ impl SimPeer {
         }
         self.core().end_session(&mut session);
         drop(replies);
-        let _ = writer.await;
+        let _ = (&mut writer.0).await;
+    }
+
+    /// Cuts the controller's power: it falls silent at once, the listener and every
+    /// connection close, and the bench comes back as the next start-up finds it (shafts
+    /// where they are, the flash as last written, a write cut short left torn).
+    pub fn kill(&self) -> Bench {
+        let bench = {
+            let mut core = self.core();
+            core.cut_power();
+            bench::lock(core.bench()).power_cycled()
+        };
+        self.shutdown();
+        bench
     }
 
     /// Stops serving and stepping.
@@ -271,6 +312,15 @@ impl SimPeer {
 impl Drop for SimPeer {
     fn drop(&mut self) {
         self.shutdown();
+    }
+}
+
+/// A task that ends with its owner (a connection's writer ends with the connection).
+struct AbortOnDrop(JoinHandle<()>);
+
+impl Drop for AbortOnDrop {
+    fn drop(&mut self) {
+        self.0.abort();
     }
 }
 
