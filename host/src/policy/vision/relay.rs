@@ -14,18 +14,14 @@ use optalign_optics::{Frame, Station};
 
 use super::model::{Tracker, Vec2, column_norm, distance};
 use super::see::{View, motion, stationary_pairs};
-use super::servo::{Servo, Spot};
+use super::servo::{Servo, Spot, useful_probe};
 use crate::imaging::Beam;
 use crate::task::{BenchGeometry, RelayAction, RelayLimits};
 
 /// The first probe tilts an axis by this share of the cumulative range (both sides).
 const CAUTIOUS_SHARE: f64 = 1.0 / 32.0;
 
-/// A probe aims to move the spot this share of the image's shorter side (at the bench's
-/// nominal response, or at the previous mirror's measured one) ...
-const PROBE_VIEW_SHARE: f64 = 0.15;
-
-/// ... and probes and steps stay within these shares of the cumulative range.
+/// Probes and steps stay within these shares of the cumulative range.
 const PROBE_SHARES: Vec2 = [1.0 / 512.0, 1.0 / 4.0];
 
 /// While the spot has not been seen at the near station, the search grows by this factor.
@@ -154,12 +150,16 @@ impl RelayAgent {
         let bound = f64::from(self.limits.max_cumulative);
         match self.nominal_response().zip(self.image_side_px) {
             Some((response, side)) => {
-                let probe =
-                    (SEARCH_GRID_SHARE * side / response).clamp(1.0, MAX_SEARCH_SHARE * bound);
+                let probe = (SEARCH_GRID_SHARE * side / response).clamp(1.0, self.widest_search());
                 Tracker::new([probe, probe], [[-bound, bound], [-bound, bound]])
             }
             None => new_tracker(&self.limits),
         }
+    }
+
+    /// The longest search probe, steps.
+    fn widest_search(&self) -> f64 {
+        MAX_SEARCH_SHARE * f64::from(self.limits.max_cumulative)
     }
 
     fn tilt_of(&self, m: usize) -> Vec2 {
@@ -279,7 +279,7 @@ impl RelayAgent {
             .as_ref()
             .map(|(view, _, _)| view.size()[0].min(view.size()[1]));
         let probe = match (self.nominal_response().or(self.known_response), side) {
-            (Some(response), Some(side)) => PROBE_VIEW_SHARE * side / response,
+            (Some(response), Some(side)) => useful_probe(side, response),
             _ => CAUTIOUS_SHARE * range,
         };
         Servo::new(probe, bounds, gain)
@@ -332,7 +332,7 @@ impl RelayAgent {
         // Never seen here: search outwards around the start, wider each ring.
         self.search.add_missing(u);
         if self.search.missing.len() > 1 && self.nominal_response().is_none() {
-            let widest = MAX_SEARCH_SHARE * f64::from(self.limits.max_cumulative);
+            let widest = self.widest_search();
             let probe = self.search.probe.map(|p| (p * SEARCH_GROWTH).min(widest));
             self.search.set_probe(probe);
         }

@@ -26,9 +26,9 @@ const MIN_MOVE_SHARE: f64 = 0.03;
 /// Growth (and shrinking) of probes and of the trust radius.
 const GROWTH: f64 = 2.0;
 
-/// Probes made once a spot cut by the edge shows whole aim to move it this share of the
-/// image's shorter side.
-const WHOLE_PROBE_SHARE: f64 = 0.15;
+/// A probe sized from a response aims to move the spot this share of the image's shorter
+/// side.
+const PROBE_VIEW_SHARE: f64 = 0.15;
 
 /// The trust radius starts at this many probe lengths.
 const START_RADIUS_PROBES: f64 = 4.0;
@@ -200,9 +200,9 @@ impl Servo {
             if self.rough && spot.whole {
                 // Shows whole now: measure the response properly from here, with probes
                 // that move the spot a useful share of the image at the rough response.
-                if let Some(scale) = self.gain.map(|g| column_norm(g).max(1e-9)) {
-                    self.probe =
-                        (WHOLE_PROBE_SHARE * side / scale).clamp(self.bounds[0], self.bounds[1]);
+                if let Some(gain) = self.gain {
+                    self.probe = useful_probe(side, column_norm(gain).max(1e-9))
+                        .clamp(self.bounds[0], self.bounds[1]);
                 }
                 self.gain = None;
                 self.rough = false;
@@ -279,6 +279,12 @@ impl Servo {
             }
         }
     }
+}
+
+/// The probe, steps, that moves a spot a useful share of an image whose shorter side is
+/// `side` px at a response of `response` px per step.
+pub fn useful_probe(side: f64, response: f64) -> f64 {
+    PROBE_VIEW_SHARE * side / response
 }
 
 /// The servo's ranking of what was seen (`None` when nothing was).
