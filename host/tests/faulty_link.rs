@@ -40,15 +40,6 @@ const RATES: FaultRates = FaultRates {
     reset: 8,
 };
 
-fn moves_per_seed() -> usize {
-    match std::env::var("OPTALIGN_FAULT_MOVES") {
-        Ok(text) => text.parse().unwrap_or_else(|_| {
-            panic!("OPTALIGN_FAULT_MOVES must be a whole number, got {text:?}")
-        }),
-        Err(_) => 70,
-    }
-}
-
 /// The peer's truth, read in-process on a serial session (never through the proxy).
 struct Truth {
     peer: Arc<SimPeer>,
@@ -355,7 +346,7 @@ async fn campaign(seed: u64, attempts: u32, moves: usize) -> (Figures, String) {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn moves_through_a_faulty_link_happen_exactly_once_and_positions_agree() {
-    let moves = moves_per_seed();
+    let moves = fault_proxy::moves_from_env("OPTALIGN_FAULT_MOVES", 70);
     let mut total = Figures::default();
     // Few attempts per request make the client give up on some moves, so that their
     // outcomes must be reconciled; many make it ride out every fault.
@@ -414,18 +405,33 @@ async fn relay_dropping_one_reply(
     address
 }
 
-/// A reconnection whose authentication reply is lost must not leave the client on the
-/// unauthenticated connection: its next attempt connects afresh and the move runs once.
-#[tokio::test]
-async fn a_lost_authentication_reply_does_not_leave_the_client_unauthenticated() {
-    let (peer, address) = SimPeer::start_on_loopback(&PeerOptions {
+/// A one-axis simulated peer with the key, on instant time, and its address.
+async fn keyed_one_axis_peer() -> (Arc<SimPeer>, SocketAddr) {
+    SimPeer::start_on_loopback(&PeerOptions {
         axes: 1,
         key: Some(KEY.into()),
         time: TimeMode::Instant,
         ..PeerOptions::default()
     })
     .await
-    .unwrap();
+    .unwrap()
+}
+
+/// A client with the key that tries ten times, 200 ms each.
+fn patient_options() -> ClientOptions {
+    ClientOptions {
+        key: Some(optalign::link::AccessKey::passphrase(KEY)),
+        request_timeout: Duration::from_millis(200),
+        attempts: 10,
+        ..ClientOptions::default()
+    }
+}
+
+/// A reconnection whose authentication reply is lost must not leave the client on the
+/// unauthenticated connection: its next attempt connects afresh and the move runs once.
+#[tokio::test]
+async fn a_lost_authentication_reply_does_not_leave_the_client_unauthenticated() {
+    let (peer, address) = keyed_one_axis_peer().await;
     // Connection 1's frame 1 is the answer to its AuthChallenge (frame 0 answers Hello).
     let relay = relay_dropping_one_reply(address, 1, 1).await;
     let client = Client::connect(
@@ -455,20 +461,8 @@ async fn a_lost_authentication_reply_does_not_leave_the_client_unauthenticated()
 /// control, half-open) sends the move again once the old session ends, and it runs once.
 #[tokio::test]
 async fn a_reconnected_client_refused_busy_waits_for_the_old_session_to_end() {
-    let (peer, address) = SimPeer::start_on_loopback(&PeerOptions {
-        axes: 1,
-        key: Some(KEY.into()),
-        time: TimeMode::Instant,
-        ..PeerOptions::default()
-    })
-    .await
-    .unwrap();
-    let options = ClientOptions {
-        key: Some(optalign::link::AccessKey::passphrase(KEY)),
-        request_timeout: Duration::from_millis(200),
-        attempts: 10,
-        ..ClientOptions::default()
-    };
+    let (peer, address) = keyed_one_axis_peer().await;
+    let options = patient_options();
     let url = format!("tcp://{address}");
     // Stands for the old connection the controller still believes in: it holds control.
     let old = Client::connect(url.parse().unwrap(), options.clone())
@@ -499,20 +493,8 @@ async fn a_reconnected_client_refused_busy_waits_for_the_old_session_to_end() {
 /// client really controls the controller.
 #[tokio::test]
 async fn a_client_refused_busy_on_its_first_connection_reports_it_at_once() {
-    let (_peer, address) = SimPeer::start_on_loopback(&PeerOptions {
-        axes: 1,
-        key: Some(KEY.into()),
-        time: TimeMode::Instant,
-        ..PeerOptions::default()
-    })
-    .await
-    .unwrap();
-    let options = ClientOptions {
-        key: Some(optalign::link::AccessKey::passphrase(KEY)),
-        request_timeout: Duration::from_millis(200),
-        attempts: 10,
-        ..ClientOptions::default()
-    };
+    let (_peer, address) = keyed_one_axis_peer().await;
+    let options = patient_options();
     let url = format!("tcp://{address}");
     let holder = Client::connect(url.parse().unwrap(), options.clone())
         .await

@@ -44,15 +44,6 @@ const RATES: FaultRates = FaultRates {
     reset: 5,
 };
 
-fn campaign_moves() -> usize {
-    match std::env::var("OPTALIGN_CAMPAIGN_MOVES") {
-        Ok(text) => text.parse().unwrap_or_else(|_| {
-            panic!("OPTALIGN_CAMPAIGN_MOVES must be a whole number, got {text:?}")
-        }),
-        Err(_) => 200,
-    }
-}
-
 fn peer_options() -> PeerOptions {
     PeerOptions {
         axes: AXES,
@@ -460,7 +451,7 @@ async fn campaign(seed: u64, moves: usize) -> (Figures, String) {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn killed_at_random_no_move_runs_twice_and_no_lost_position_goes_unflagged() {
-    let moves = campaign_moves();
+    let moves = fault_proxy::moves_from_env("OPTALIGN_CAMPAIGN_MOVES", 200);
     let (_, summary) = campaign(0xC0FFEE, moves).await;
     println!("{summary}");
 }

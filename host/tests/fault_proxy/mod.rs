@@ -3,7 +3,7 @@
 //! directions, drops, duplicates, delays, splits or corrupts what passes, or resets the
 //! connection. Every decision comes from a generator seeded from the proxy's seed, the
 //! connection's number and the direction, so a seed replays the same faults on the same
-//! traffic.
+//! traffic. Campaigns through it take their size from the environment ([`moves_from_env`]).
 
 use std::net::SocketAddr;
 use std::sync::Arc;
@@ -219,5 +219,16 @@ async fn forward(
         Err(Reset)
     } else {
         write(to, frame).await
+    }
+}
+
+/// The number of moves a campaign makes: the whole number in environment variable `name`,
+/// else `default`.
+pub fn moves_from_env(name: &str, default: usize) -> usize {
+    match std::env::var(name) {
+        Ok(text) => text
+            .parse()
+            .unwrap_or_else(|_| panic!("{name} must be a whole number, got {text:?}")),
+        Err(_) => default,
     }
 }
