@@ -169,15 +169,7 @@ impl CavityAgent {
                 .unwrap_or(aim);
         }
         self.checks += 1;
-        let dir = [0, 1].map(|a| {
-            let step = u[a] - self.command[a];
-            if step.abs() >= SAME_STEP {
-                step.signum()
-            } else {
-                self.tracker.dir[a]
-            }
-        });
-        let predicted = self.tracker.predict(u, dir);
+        let predicted = self.tracker.predict(u);
         self.send(u, Step::Check(predicted), false)
     }
 
@@ -240,7 +232,7 @@ impl CavityAgent {
         }
         let pairs = stationary_pairs(&before.beams, &view.beams, self.scales.steady());
         self.scales.learn_steady(&pairs, &before.beams, &view.beams);
-        let expected = self.tracker.predict_here(self.command);
+        let expected = self.tracker.predict(self.command);
         let moved = motion(&before, view, self.scales.steady(), expected, None);
         let radius = self.scales.radius(SECONDARY);
         let hidden = HIDDEN_RADII * primary_radius;

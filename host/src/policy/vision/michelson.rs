@@ -236,15 +236,15 @@ impl MichelsonAgent {
         self.scales
             .learn_steady(&pairs, &before.beams, &after.beams);
         let (old, new) = (self.before[k], self.mirror(k));
-        let expected = self.trackers[k].predict_here(new);
+        let expected = self.trackers[k].predict(new);
         let moved = motion(before, after, self.scales.steady(), expected, parked);
         let untried = !self.trackers[k].tried_within(old, SAME_STEP);
         let other_now = parked
             .map(|(_, to)| to)
-            .or_else(|| self.trackers[j].predict_here(self.mirror(j)));
+            .or_else(|| self.trackers[j].predict(self.mirror(j)));
         let other_then = parked
             .map(|(from, _)| from)
-            .or_else(|| self.trackers[j].predict_here(self.before[j]));
+            .or_else(|| self.trackers[j].predict(self.before[j]));
         let radius = self.scales.radius(j);
         let judge = |seen: Seen, view: &View, other: Option<Vec2>| {
             let sighting = sight(
@@ -375,9 +375,9 @@ impl MichelsonAgent {
             if let Some(c) = seen {
                 let u = self.mirror(k);
                 self.trackers[k].add_clean(u, *c);
-                let lost = self.trackers[k].lost;
+                let lost = self.trackers[k].lost();
                 self.trackers[k].estimate_lost_motion();
-                relearned |= self.trackers[k].lost != lost;
+                relearned |= self.trackers[k].lost() != lost;
             }
         }
         // A new estimate of the lost motion changes every prediction: it is checked first.
@@ -426,7 +426,7 @@ impl MichelsonAgent {
         self.set_mirror(k, u);
         let j = 1 - k;
         let mut parked = None;
-        if let Some(now) = self.trackers[j].predict_here(self.mirror(j)) {
+        if let Some(now) = self.trackers[j].predict(self.mirror(j)) {
             let probed_x = self.trackers[k]
                 .clean
                 .last()
@@ -437,8 +437,7 @@ impl MichelsonAgent {
             let spot = [centre[0] + side * PARK_SHARE * width, centre[1]];
             if distance(now, centre) < PARK_WHEN_SHARE * width
                 && let Some(v) = self.trackers[j].command_for(spot, self.mirror(j))
-                && let Some(landing) =
-                    self.trackers[j].predict(v, move_dir(self.mirror(j), v, self.trackers[j].dir))
+                && let Some(landing) = self.trackers[j].predict(v)
                 && distance(landing, spot) < self.scales.radius(j)
             {
                 self.set_mirror(j, v);
@@ -482,7 +481,7 @@ impl MichelsonAgent {
             if let [Some(a), Some(b)] = solved {
                 let within = [a, b].iter().enumerate().zip(targets).all(|((k, u), t)| {
                     self.trackers[k]
-                        .predict(*u, move_dir(self.mirror(k), *u, self.trackers[k].dir))
+                        .predict(*u)
                         .is_some_and(|p| distance(p, t) < 1.0)
                 });
                 if within || chosen.is_none() {
@@ -501,7 +500,7 @@ impl MichelsonAgent {
         let mut predicted = [[0.0; 2]; 2];
         for (k, u) in solved.into_iter().enumerate() {
             self.set_mirror(k, u);
-            predicted[k] = self.trackers[k].predict_here(u).unwrap_or(centre);
+            predicted[k] = self.trackers[k].predict(u).unwrap_or(centre);
         }
         self.last = Step::Check { predicted };
         self.action(false)
@@ -514,7 +513,7 @@ impl MichelsonAgent {
         self.missed = None;
         let centre = [size[0] / 2.0, size[1] / 2.0];
         let other = self.trackers[1 - k]
-            .predict_here(self.mirror(1 - k))
+            .predict(self.mirror(1 - k))
             .unwrap_or(centre);
         let margin = (WHOLE_RADII * self.scales.radius(k)).min(size[0].min(size[1]) / 2.0);
         let target = [0, 1].map(|a| {
@@ -561,17 +560,4 @@ impl MichelsonAgent {
             None
         }
     }
-}
-
-/// The direction each axis moves in going from `from` to `to` (the current one where it
-/// does not move).
-fn move_dir(from: Vec2, to: Vec2, current: Vec2) -> Vec2 {
-    [0, 1].map(|a| {
-        let step = to[a] - from[a];
-        if step.abs() >= SAME_STEP {
-            step.signum()
-        } else {
-            current[a]
-        }
-    })
 }

@@ -7,6 +7,7 @@
 mod cavity;
 mod michelson;
 mod model;
+mod play;
 mod relay;
 mod see;
 mod servo;

@@ -6,6 +6,8 @@
 
 use std::ops::RangeInclusive;
 
+use super::play::{self, Play};
+
 /// A 2-vector (motor steps or pixels).
 pub type Vec2 = [f64; 2];
 
@@ -180,12 +182,10 @@ const SAME_COMMAND_SHARE: f64 = 0.04;
 pub const SAME_STEP: f64 = 1.0;
 
 /// Lost motion is estimated once this many clean sightings were made ...
-const LOST_MOTION_MIN_SIGHTINGS: usize = 5;
+const LOST_MOTION_MIN_SIGHTINGS: usize = 8;
 
-/// Gauss-Newton iterations of the lost-motion estimate (each refits the map), at most,
-/// until a step changes it by less than this, steps.
-const LOST_MOTION_ITERATIONS: usize = 60;
-const LOST_MOTION_SETTLED: f64 = 0.01;
+/// The change of a dead band its uncertainty is measured over, steps.
+const LOST_MOTION_DELTA: f64 = 1.0;
 
 /// ... with at least this many after moves either way on the axis ...
 const LOST_MOTION_PER_SIDE: usize = 2;
@@ -243,13 +243,16 @@ const TRIM_EXHAUSTIVE: usize = 12;
 /// The median distance of a two-dimensional Gaussian scatter, in its per-axis deviations.
 const MEDIAN_MISS_PER_SIGMA: f64 = 1.177;
 
-/// One sighting of a feature: the command, where it showed, and the direction each axis
-/// had last moved in (+1, -1; 0 before its first move).
+/// One sighting of a feature: the command, where it showed, the direction each axis had
+/// last moved in (+1, -1; 0 before its first move) and where in the tracker's command path
+/// it was made.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Sight {
     pub command: Vec2,
     pub image: Vec2,
     pub dir: Vec2,
+    /// Index of the command in [`Tracker::path`] the mount had last been sent to.
+    at: usize,
     /// When it was made, counting every sighting of the tracker.
     pub order: usize,
     /// Extrapolated from a spot the border cut ([`Sighting::Fitted`]).
@@ -275,9 +278,13 @@ pub struct Tracker {
     pub dir: Vec2,
     /// The directions before the last move.
     previous_dir: Vec2,
-    /// Motion lost when an axis reverses (a dead band the controller does not compensate),
-    /// steps, as estimated from the sightings.
-    pub lost: Vec2,
+    /// Every command the mount was sent to, in order (the start first).
+    path: Vec<Vec2>,
+    /// The index in `path` of the command before the last move.
+    before_move: usize,
+    /// The play of the mount (a dead band the controller does not compensate, and where in
+    /// it the mount started), as estimated from the sightings.
+    play: Play,
     /// The scatter of one measured position, px (set by the agent from what it measured).
     pub noise: f64,
     /// Sightings made so far (clean and partial), for their order.
@@ -298,14 +305,17 @@ impl Tracker {
             min_spread: probe[0].min(probe[1]) / 4.0,
             dir: [0.0; 2],
             previous_dir: [0.0; 2],
-            lost: [0.0; 2],
+            path: Vec::new(),
+            before_move: 0,
+            play: Play::default(),
             noise: 1.0,
             made: 0,
             lost_at: None,
         }
     }
 
-    /// Books a commanded move from `from` to `to`: the axes that moved set their direction.
+    /// Books a commanded move from `from` to `to`: the axes that moved set their direction,
+    /// and the command joins the path.
     pub fn moved(&mut self, from: Vec2, to: Vec2) {
         self.previous_dir = self.dir;
         for axis in 0..2 {
@@ -314,22 +324,54 @@ impl Tracker {
                 self.dir[axis] = step.signum();
             }
         }
+        if self
+            .path
+            .last()
+            .is_none_or(|&last| distance(last, from) >= SAME_STEP)
+        {
+            self.path.push(from);
+        }
+        self.before_move = self.path.len() - 1;
+        if distance(from, to) >= SAME_STEP {
+            self.path.push(to);
+        }
     }
 
-    /// Where the mount really sits for `command` reached moving in `dir`: behind the
-    /// command by half the lost motion (the convention puts the dead band's middle at the
-    /// command).
-    fn effective(&self, command: Vec2, dir: Vec2) -> Vec2 {
-        [
-            command[0] - self.lost[0] / 2.0 * dir[0],
-            command[1] - self.lost[1] / 2.0 * dir[1],
-        ]
+    /// The index in the path of the command the mount was last sent to.
+    fn here(&self) -> usize {
+        self.path.len().saturating_sub(1)
+    }
+
+    /// Motion lost when an axis reverses, steps, as estimated from the sightings.
+    pub fn lost(&self) -> Vec2 {
+        self.play.band
+    }
+
+    /// Where the load sat at each command of the path, for the mount's `play`.
+    fn loads(&self, play: Play) -> Vec<Vec2> {
+        play::trajectory(&self.path, play)
+    }
+
+    /// Where the mount really sat for sighting `s`, given the `loads` along the path: its
+    /// command, less how far the motor then led the load (the convention puts the dead
+    /// band's middle at the command).
+    fn effective(&self, s: &Sight, loads: &[Vec2]) -> Vec2 {
+        match (self.path.get(s.at), loads.get(s.at)) {
+            (Some(motor), Some(load)) => [0, 1].map(|a| s.command[a] - (motor[a] - load[a])),
+            _ => s.command,
+        }
+    }
+
+    /// Where the load sits now.
+    fn load_now(&self) -> Option<Vec2> {
+        self.loads(self.play).last().copied()
     }
 
     /// The clean sightings a map is fitted to, on effective commands: the whole ones alone
     /// once they span both axes (a fitted centre of a cut spot is less exact), else all.
     fn points(&self) -> Vec<(Vec2, Vec2)> {
-        let point = |s: &Sight| (self.effective(s.command, s.dir), s.image);
+        let loads = self.loads(self.play);
+        let point = |s: &Sight| (self.effective(s, &loads), s.image);
         let whole: Vec<(Vec2, Vec2)> = self.clean.iter().filter(|s| !s.fitted).map(point).collect();
         if whole.len() < self.clean.len() && Affine::fit(&whole, self.min_spread).is_some() {
             return whole;
@@ -429,53 +471,44 @@ impl Tracker {
     pub fn local_model(&self) -> Option<Affine> {
         let model = self.model()?;
         Some(match self.clean.last() {
-            Some(s) => model.anchored(self.effective(s.command, s.dir), s.image),
+            Some(s) => model.anchored(self.effective(s, &self.loads(self.play)), s.image),
             None => model,
         })
     }
 
-    /// Where the feature shows for `command` reached moving in `dir`.
-    pub fn predict(&self, command: Vec2, dir: Vec2) -> Option<Vec2> {
-        Some(self.local_model()?.predict(self.effective(command, dir)))
+    /// Where the feature shows once the mount is sent from where it is now to `command`.
+    pub fn predict(&self, command: Vec2) -> Option<Vec2> {
+        let load = match self.load_now() {
+            Some(now) => play::settle(now, command, self.play.band),
+            None => command,
+        };
+        Some(self.local_model()?.predict(load))
     }
 
-    /// Where the feature shows now, at `command` with the axes' current directions.
-    pub fn predict_here(&self, command: Vec2) -> Option<Vec2> {
-        self.predict(command, self.dir)
-    }
-
-    /// The command that puts the feature at `point` when moving there from `from`, within
-    /// range: the lost motion is added on the side each axis approaches from.
+    /// The command that puts the feature at `point` when the mount is sent there from
+    /// `from` (where it is now), within range: an axis whose load must move goes past the
+    /// target by half the lost motion on the side it approaches from; one whose load is
+    /// already there stays.
     pub fn command_for(&self, point: Vec2, from: Vec2) -> Option<Vec2> {
         let target = self.local_model()?.solve(point)?;
-        let mut command = [0.0; 2];
-        for axis in 0..2 {
-            let half = self.lost[axis] / 2.0;
-            let forward = target[axis] + half;
-            let backward = target[axis] - half;
-            command[axis] = if forward > from[axis] + SAME_STEP && backward < from[axis] - SAME_STEP
-            {
-                // Both approaches reach it: the shorter move.
-                if (forward - from[axis]).abs() <= (from[axis] - backward).abs() {
-                    forward
-                } else {
-                    backward
-                }
-            } else if forward > from[axis] + SAME_STEP {
-                forward
-            } else if backward < from[axis] - SAME_STEP {
-                backward
+        let load = self.load_now().unwrap_or(from);
+        let command = [0, 1].map(|axis| {
+            let half = self.play.band[axis] / 2.0;
+            if target[axis] > load[axis] + SAME_STEP {
+                target[axis] + half
+            } else if target[axis] < load[axis] - SAME_STEP {
+                target[axis] - half
             } else {
-                // Within the dead band of where it is: moving would not help.
                 from[axis]
-            };
-        }
+            }
+        });
         Some(self.clamp(command))
     }
 
     /// Re-estimates the lost motion of each axis from clean sightings made after moves in
-    /// both directions: Gauss-Newton on the affine fit's residuals, kept only when it
-    /// explains a real share of them.
+    /// both directions: the dead band whose play along the command path best fits the
+    /// sightings to one map, kept only when it explains a real share of the misfit and
+    /// differs from the current estimate by more than its own uncertainty.
     pub fn estimate_lost_motion(&mut self) {
         if self.clean.len() < LOST_MOTION_MIN_SIGHTINGS {
             return;
@@ -493,18 +526,8 @@ impl Tracker {
         if axes.is_empty() {
             return;
         }
-        let residual = |tracker: &Tracker| -> Option<f64> {
-            let model = tracker.plain_model()?;
-            Some(
-                tracker
-                    .points()
-                    .iter()
-                    .map(|(u, p)| distance(model.predict(*u), *p).powi(2))
-                    .sum::<f64>(),
-            )
-        };
-        // Sightings made before an axis first moved say nothing of which side of the dead
-        // band the mount was on.
+        // Sightings made before an axis first moved say nothing of where in the dead band
+        // the mount was.
         let mut trial = self.clone();
         trial
             .clean
@@ -512,71 +535,98 @@ impl Tracker {
         if trial.clean.len() < LOST_MOTION_MIN_SIGHTINGS {
             return;
         }
-        let Some(start) = residual(&trial) else {
+        let misfit = |trial: &Tracker| {
+            let trial = trial.clone();
+            move |play: Play| -> f64 {
+                let mut candidate = trial.clone();
+                candidate.play = play;
+                candidate.residual().unwrap_or(f64::INFINITY)
+            }
+        };
+        // The play every sighting suggests; then, at that play, without the sightings the
+        // others contradict (two beams seen merged), which would pull the band to explain
+        // them. Trimmed at the current play instead, the trim would drop the very
+        // sightings the band displaced.
+        let widest = play::widest_band(&self.path);
+        trial.play = play::best_play(self.play, &axes, widest, misfit(&trial));
+        let trimmed = trial.without_contradicted();
+        if trimmed.clean.len() >= LOST_MOTION_MIN_SIGHTINGS {
+            trial = trimmed;
+        }
+        let start = misfit(&trial)(self.play);
+        if !start.is_finite() {
             return;
+        }
+        let found = play::best_play(trial.play, &axes, widest, misfit(&trial));
+        let end = misfit(&trial)(found);
+        trial.play = found;
+        let Some(error) = trial.lost_motion_error(&axes) else {
+            return;
+        };
+        let significant = axes.iter().all(|&a| {
+            (found.band[a] - self.play.band[a]).abs() > LOST_MOTION_SIGNIFICANCE * error[a]
+        });
+        if end < (1.0 - LOST_MOTION_GAIN) * start && significant {
+            self.play = found;
+        }
+    }
+
+    /// This tracker without the clean sightings its robust fit drops as contradicted.
+    fn without_contradicted(&self) -> Self {
+        let mut kept = self.clone();
+        if let Some((_, points)) = self.robust_fit() {
+            let loads = self.loads(self.play);
+            kept.clean
+                .retain(|s| points.contains(&(self.effective(s, &loads), s.image)));
+        }
+        kept
+    }
+
+    /// The sum of squared misses of the least-squares map through every clean sighting.
+    fn residual(&self) -> Option<f64> {
+        let model = self.plain_model()?;
+        Some(
+            self.points()
+                .iter()
+                .map(|(u, p)| distance(model.predict(*u), *p).powi(2))
+                .sum(),
+        )
+    }
+
+    /// The standard error of the lost motion on `axes`, steps: the fit's scatter over how
+    /// strongly a change of each axis's band moves the sightings' predicted positions.
+    fn lost_motion_error(&self, axes: &[usize]) -> Option<Vec2> {
+        let model = self.plain_model()?;
+        // A fit closer than the position noise is a fit to too few sightings, not a measure
+        // of the band.
+        let variance = {
+            let dof = (2 * self.clean.len()).saturating_sub(6 + axes.len()).max(1);
+            (self.residual()? / dof as f64).max(self.noise * self.noise)
         };
         let mut error = [0.0; 2];
-        for _ in 0..LOST_MOTION_ITERATIONS {
-            let Some(model) = trial.plain_model() else {
-                return;
+        for &a in axes {
+            let shifted = |by: f64| {
+                let mut play = self.play;
+                play.band[a] = (play.band[a] + by).max(0.0);
+                (self.loads(play), play.band[a])
             };
-            // Residual r ≈ J δ with J[row][axis] = -gain[row][axis] dir[axis] / 2.
-            let mut normal = [[0.0; 2]; 2];
-            let mut rhs = [0.0; 2];
-            let mut sum_r2 = 0.0;
-            for s in &trial.clean {
-                let u = trial.effective(s.command, s.dir);
-                let predicted = model.predict(u);
-                for (row, (&seen, &expected)) in s.image.iter().zip(&predicted).enumerate() {
-                    let r = seen - expected;
-                    sum_r2 += r * r;
-                    let j: Vec2 = [0, 1].map(|a| -model.gain[row][a] * s.dir[a] / 2.0);
-                    for &a in &axes {
-                        rhs[a] += j[a] * r;
-                        for &b in &axes {
-                            normal[a][b] += j[a] * j[b];
-                        }
-                    }
-                }
-            }
-            let step = match axes.as_slice() {
-                [a] => {
-                    let mut step = [0.0; 2];
-                    step[*a] = rhs[*a] / normal[*a][*a].max(1e-12);
-                    step
-                }
-                _ => {
-                    let det = normal[0][0] * normal[1][1] - normal[0][1] * normal[1][0];
-                    if det.abs() < 1e-12 {
-                        return;
-                    }
-                    [
-                        (normal[1][1] * rhs[0] - normal[0][1] * rhs[1]) / det,
-                        (normal[0][0] * rhs[1] - normal[1][0] * rhs[0]) / det,
-                    ]
-                }
-            };
-            let dof = (2 * trial.clean.len())
-                .saturating_sub(6 + axes.len())
-                .max(1) as f64;
-            let variance = sum_r2 / dof;
-            for &a in &axes {
-                trial.lost[a] += step[a];
-                error[a] = (variance / normal[a][a].max(1e-12)).sqrt();
-            }
-            if step[0].hypot(step[1]) < LOST_MOTION_SETTLED {
-                break;
-            }
+            let ((above, high), (below, low)) =
+                (shifted(LOST_MOTION_DELTA), shifted(-LOST_MOTION_DELTA));
+            let width = (high - low).max(1e-12);
+            let sensitivity: f64 = self
+                .clean
+                .iter()
+                .map(|s| {
+                    let moved =
+                        (self.effective(s, &above)[a] - self.effective(s, &below)[a]) / width;
+                    (0..2)
+                        .map(|row| (model.gain[row][a] * moved).powi(2))
+                        .sum::<f64>()
+                })
+                .sum();
+            error[a] = (variance / sensitivity.max(1e-12)).sqrt();
         }
-        let Some(end) = residual(&trial) else {
-            return;
-        };
-        let significant = axes
-            .iter()
-            .all(|&a| (trial.lost[a] - self.lost[a]).abs() > LOST_MOTION_SIGNIFICANCE * error[a]);
-        if end < (1.0 - LOST_MOTION_GAIN) * start && significant {
-            self.lost = trial.lost;
-        }
+        Some(error)
     }
 
     /// What the tracker believes, for the transcript: how many sightings of each kind, the
@@ -590,18 +640,19 @@ impl Tracker {
                 "missing": self.missing.len(),
             },
             "response_px_per_step": model.map(|m| m.gain),
-            "lost_motion_steps": self.lost,
-            "predicted_px": self.predict_here(command),
+            "lost_motion_steps": self.play.band,
+            "predicted_px": self.predict(command),
         })
     }
 
     /// Records a clean sighting at `command`, replacing an earlier one at the same command
     /// and direction.
     pub fn add_clean(&mut self, command: Vec2, image: Vec2) {
-        self.add_clean_with(command, image, self.dir, false);
+        self.add_clean_with(command, image, (self.dir, self.here()), false);
     }
 
-    fn add_clean_with(&mut self, command: Vec2, image: Vec2, dir: Vec2, fitted: bool) {
+    fn add_clean_with(&mut self, command: Vec2, image: Vec2, when: (Vec2, usize), fitted: bool) {
+        let (dir, at) = when;
         self.clean
             .retain(|s| distance(s.command, command) >= SAME_STEP || s.dir != dir);
         let order = self.next_order();
@@ -609,17 +660,20 @@ impl Tracker {
             command,
             image,
             dir,
+            at,
             order,
             fitted,
         });
     }
 
-    fn add_partial_with(&mut self, command: Vec2, image: Vec2, dir: Vec2) {
+    fn add_partial_with(&mut self, command: Vec2, image: Vec2, when: (Vec2, usize)) {
+        let (dir, at) = when;
         let order = self.next_order();
         self.partial.push(Sight {
             command,
             image,
             dir,
+            at,
             order,
             fitted: false,
         });
@@ -633,22 +687,24 @@ impl Tracker {
     /// Files what was seen at the current `command` (or that nothing was).
     pub fn file(&mut self, command: Vec2, seen: Option<Sighting>) {
         match seen {
-            Some(seen) => self.file_with(command, seen, self.dir),
+            Some(seen) => self.file_with(command, seen, (self.dir, self.here())),
             None => self.add_missing(command),
         }
     }
 
-    fn file_with(&mut self, command: Vec2, seen: Sighting, dir: Vec2) {
+    /// Files `seen` at `command`, made `when` the axes had last moved in the given
+    /// directions and the mount was at the given index of the path.
+    fn file_with(&mut self, command: Vec2, seen: Sighting, when: (Vec2, usize)) {
         match seen {
-            Sighting::Clean(c) => self.add_clean_with(command, c, dir, false),
-            Sighting::Fitted(c) => self.add_clean_with(command, c, dir, true),
-            Sighting::Partial(c) => self.add_partial_with(command, c, dir),
+            Sighting::Clean(c) => self.add_clean_with(command, c, when, false),
+            Sighting::Fitted(c) => self.add_clean_with(command, c, when, true),
+            Sighting::Partial(c) => self.add_partial_with(command, c, when),
         }
     }
 
-    /// Files what was seen at `command` before the last move, with the directions then.
+    /// Files what was seen at `command` before the last move, as the mount was then.
     pub fn file_before_move(&mut self, command: Vec2, seen: Sighting) {
-        self.file_with(command, seen, self.previous_dir);
+        self.file_with(command, seen, (self.previous_dir, self.before_move));
     }
 
     pub fn add_missing(&mut self, command: Vec2) {
@@ -788,9 +844,10 @@ impl Tracker {
             return None;
         }
         let sights = self.steering_sightings();
+        let loads = self.loads(self.play);
         let points: Vec<(Vec2, Vec2)> = sights
             .iter()
-            .map(|s| (self.effective(s.command, s.dir), s.image))
+            .map(|s| (self.effective(s, &loads), s.image))
             .collect();
         let rough = Affine::fit(&points, self.min_spread)?;
         if rough.balance() < ROUGH_BALANCE {
@@ -800,7 +857,7 @@ impl Tracker {
         let base = latest.command;
         let halfway = [0, 1].map(|a| (latest.image[a] + view[a] / 2.0) / 2.0);
         let aim = rough
-            .anchored(self.effective(base, latest.dir), latest.image)
+            .anchored(self.effective(latest, &loads), latest.image)
             .solve(halfway)?;
         let command = self.clamp([0, 1].map(|a| {
             let reach = ROUGH_REACH * self.probe[a];
@@ -963,13 +1020,17 @@ mod tests {
             offset: [900.0, 500.0],
             gain: [[0.17, 0.012], [-0.01, -0.16]],
         };
-        // The mount loses 300 steps on each axis when it reverses: the load sits 300 steps
-        // ahead of the command after a move backwards.
-        let load = |command: Vec2, dir: Vec2| {
-            [0, 1].map(|a| command[a] + if dir[a] < 0.0 { 300.0 } else { 0.0 })
-        };
+        // The mount has 300 steps of play on each axis: on a reversal the motor turns
+        // 300 steps before the load follows.
+        let band = [300.0, 300.0];
         let mut tracker = Tracker::new([1500.0, 1500.0], [[-8000.0, 8000.0], [-6000.0, 6000.0]]);
-        let mut at = [0.0, 0.0];
+        // The motor's command and the load, as the bench has them.
+        let mut mount = ([0.0, 0.0], [0.0, 0.0]);
+        let go = |tracker: &mut Tracker, mount: &mut (Vec2, Vec2), next: Vec2| {
+            tracker.moved(mount.0, next);
+            *mount = (next, play::settle(mount.1, next, band));
+            tracker.add_clean(next, truth.predict(mount.1));
+        };
         for next in [
             [1500.0, 0.0],
             [1500.0, 1500.0],
@@ -978,40 +1039,41 @@ mod tests {
             [2500.0, -1000.0],
             [-1000.0, 800.0],
             [600.0, 300.0],
+            [1800.0, -700.0],
+            [-300.0, 1200.0],
         ] {
-            tracker.moved(at, next);
-            at = next;
-            tracker.add_clean(next, truth.predict(load(next, tracker.dir)));
+            go(&mut tracker, &mut mount, next);
         }
-        assert_eq!(tracker.lost, [0.0, 0.0]);
+        assert_eq!(tracker.lost(), [0.0, 0.0]);
         tracker.estimate_lost_motion();
         assert!(
-            (tracker.lost[0] - 300.0).abs() < 1.0 && (tracker.lost[1] - 300.0).abs() < 1.0,
+            (tracker.lost()[0] - 300.0).abs() < 1.0 && (tracker.lost()[1] - 300.0).abs() < 1.0,
             "{:?}",
-            tracker.lost
+            tracker.lost()
         );
-        // A command reached backwards lands where it is meant to.
-        let target = [960.0, 540.0];
-        let command = tracker.command_for(target, at).unwrap();
-        let dir = [0, 1].map(|a| (command[a] - at[a]).signum());
-        assert!(distance(truth.predict(load(command, dir)), target) < 0.5);
+        // A target reached by reversing both axes lands where it is meant to.
+        let seen_now = truth.predict(mount.1);
+        let target = [seen_now[0] + 60.0, seen_now[1] + 40.0];
+        let command = tracker.command_for(target, mount.0).unwrap();
+        go(&mut tracker, &mut mount, command);
+        assert!(distance(truth.predict(mount.1), target) < 0.5);
+        // A reversal shorter than the band moves the motor only, and the tracker knows.
+        let short = [mount.0[0] - 100.0, mount.0[1]];
+        let expected = tracker.predict(short).unwrap();
+        go(&mut tracker, &mut mount, short);
+        assert!(distance(truth.predict(mount.1), expected) < 0.5);
+        assert!(distance(expected, target) < 0.5);
         // Without reversals there is nothing to measure.
         let mut forward = Tracker::new([1500.0, 1500.0], [[-8000.0, 8000.0], [-6000.0, 6000.0]]);
-        for (i, next) in [
-            [500.0, 0.0],
-            [1000.0, 500.0],
-            [1500.0, 900.0],
-            [2200.0, 1400.0],
-            [2600.0, 2000.0],
-        ]
-        .into_iter()
-        .enumerate()
-        {
-            forward.moved(if i == 0 { [0.0; 2] } else { next }, next);
-            forward.moved([0.0; 2], next);
-            forward.add_clean(next, truth.predict(load(next, forward.dir)));
+        let mut mount = ([0.0, 0.0], [0.0, 0.0]);
+        for i in 1..=10 {
+            go(
+                &mut forward,
+                &mut mount,
+                [400.0 * i as f64, 250.0 * i as f64],
+            );
         }
         forward.estimate_lost_motion();
-        assert_eq!(forward.lost, [0.0, 0.0]);
+        assert_eq!(forward.lost(), [0.0, 0.0]);
     }
 }
