@@ -249,3 +249,29 @@ async fn the_vision_agent_aligns_mounts_with_300_steps_of_uncompensated_backlash
         );
     }
 }
+
+#[tokio::test]
+async fn the_vision_agent_aligns_the_michelson_with_beams_that_are_not_gaussian_or_not_alone() {
+    // Each start once failed: a donut whose check found the wrong spot, a two-lobed beam
+    // whose map sent the agent between one check and one relocation until the budget ran
+    // out, and a check that anchored its map on a stray spot taken for the beam.
+    let base = ScenarioFile::default();
+    let set = |knob: Knob, value: &str| {
+        let value = knob.parse_value(value).expect("a known value");
+        knob.apply(&base, value).expect("a valid scenario")
+    };
+    let donut = set(Knob::BeamProfile, "donut");
+    let tem01 = set(Knob::BeamProfile, "tem01");
+    let stray = set(Knob::StraySpots, "3");
+    for (name, scenario, seed) in [
+        ("donut", donut, 5),
+        ("tem01", tem01, 4),
+        ("stray spots", stray, 6),
+    ] {
+        let summary = run_on(TaskKind::Michelson, seed, scenario, None).await;
+        assert!(
+            summary.success && summary.declared_done,
+            "{name}, seed {seed}: {summary:?}"
+        );
+    }
+}

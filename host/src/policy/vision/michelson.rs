@@ -96,6 +96,9 @@ enum Step {
     },
     /// Both beams placed apart near the centre; where the maps predicted them.
     Check { predicted: [Vec2; 2] },
+    /// Mirror `k` alone moved where its map puts its beam clear of the other, after a check
+    /// did not find it.
+    Relocate { k: usize },
 }
 
 /// The Michelson state machine.
@@ -111,6 +114,9 @@ pub struct MichelsonAgent {
     last_miss: Option<f64>,
     /// A beam the last check did not find where its map put it.
     missed: Option<usize>,
+    /// Mirrors whose map was refuted: a check and then a relocation did not find the beam
+    /// where the map put it. They are probed again, as if unmapped, until seen clean.
+    refuted: [bool; 2],
     /// What the images taught about this bench: beam sizes, jitter.
     scales: Scales,
     /// Command span per axis, steps.
@@ -140,6 +146,7 @@ impl MichelsonAgent {
             checks: 0,
             last_miss: None,
             missed: None,
+            refuted: [false; 2],
             scales: Scales::default(),
             spans,
         }
@@ -164,7 +171,7 @@ impl MichelsonAgent {
         if remaining <= 1 {
             return self.finish(centre);
         }
-        if let Some(k) = (0..2).find(|&k| self.trackers[k].model().is_none()) {
+        if let Some(k) = (0..2).find(|&k| self.trackers[k].model().is_none() || self.refuted[k]) {
             if remaining <= 3 {
                 return self.finish(centre);
             }
@@ -198,6 +205,7 @@ impl MichelsonAgent {
                 format!("probe mirror {}, mirror {} parked", k + 1, 2 - k)
             }
             (_, Step::Check { .. }) => "check both beams apart near the centre".to_string(),
+            (_, Step::Relocate { k }) => format!("find beam {} clear of the other", k + 1),
         };
         let mirrors: Vec<_> = (0..2)
             .map(|k| self.trackers[k].claims(self.mirror(k)))
@@ -217,20 +225,28 @@ impl MichelsonAgent {
         match self.last {
             Step::Start => false,
             Step::Probe { k, parked } => {
-                self.observe_probe(&before, view, k, parked);
+                if self.observe_probe(&before, view, k, parked) {
+                    self.refuted[k] = false;
+                }
+                false
+            }
+            Step::Relocate { k } => {
+                self.refuted[k] = !self.observe_probe(&before, view, k, None);
                 false
             }
             Step::Check { predicted } => self.observe_check(&before, view, predicted),
         }
     }
 
+    /// Learns from a move of mirror `k` alone (the other parked, when `parked`); true when
+    /// its beam was seen clean where the move took it.
     fn observe_probe(
         &mut self,
         before: &View,
         after: &View,
         k: usize,
         parked: Option<(Vec2, Vec2)>,
-    ) {
+    ) -> bool {
         let j = 1 - k;
         let pairs = stationary_pairs(&before.beams, &after.beams, self.scales.steady());
         self.scales
@@ -274,12 +290,13 @@ impl MichelsonAgent {
         }
         // The parked beam, found near where its map sent it.
         if let Some((_, to)) = parked
-            && let Some(c) = self.find_near(after, j, to)
+            && let Some(c) = self.find_near(after, j, to, &[])
         {
             let u = self.mirror(j);
             self.trackers[j].add_clean(u, c);
         }
         self.trackers[k].estimate_lost_motion();
+        matches!(seen_to, Some(Sighting::Clean(_) | Sighting::Fitted(_)))
     }
 
     /// Sizes the next probes of mirror `k` from what the last one showed: a clean motion
@@ -345,8 +362,21 @@ impl MichelsonAgent {
         (PROBE_RADII * self.scales.radius(k)).min(PROBE_VIEW_SHARE * size[0].min(size[1]))
     }
 
-    fn observe_check(&mut self, _before: &View, view: &View, predicted: [Vec2; 2]) -> bool {
-        let found = [0, 1].map(|k| self.find_near(view, k, predicted[k]));
+    fn observe_check(&mut self, before: &View, view: &View, predicted: [Vec2; 2]) -> bool {
+        // A beam the check moved across the image is not a spot that stayed put (a stray
+        // reflection or ghost near where its map put it).
+        let steady = self.scales.steady();
+        let mut stayed = vec![false; view.beams.len()];
+        for (_, j) in stationary_pairs(&before.beams, &view.beams, steady) {
+            stayed[j] = true;
+        }
+        let found = [0, 1].map(|k| {
+            let moved_far = self.trackers[k].model().is_some_and(|m| {
+                distance(m.predict(self.before[k]), predicted[k]) > self.scales.radius(k)
+            });
+            let skip = if moved_far { stayed.as_slice() } else { &[] };
+            self.find_near(view, k, predicted[k], skip)
+        });
         if let [Some(a), Some(b)] = found
             && a == b
         {
@@ -389,12 +419,15 @@ impl MichelsonAgent {
         (CONFIRM_RADII * self.scales.radius(k)).max(3.0 * self.scales.position_noise())
     }
 
-    /// The clean centre of beam `k` nearest `point` in `view`, within the match radius.
-    fn find_near(&self, view: &View, k: usize, point: Vec2) -> Option<Vec2> {
+    /// The clean centre of beam `k` nearest `point` in `view`, within the match radius,
+    /// passing over the detections flagged in `skip`.
+    fn find_near(&self, view: &View, k: usize, point: Vec2, skip: &[bool]) -> Option<Vec2> {
         let radius = self.scales.radius(k);
         view.beams
             .iter()
-            .filter_map(|b| sight(b, view, &self.scales, k, None).fit_centre())
+            .enumerate()
+            .filter(|(i, _)| !skip.get(*i).copied().unwrap_or(false))
+            .filter_map(|(_, b)| sight(b, view, &self.scales, k, None).fit_centre())
             .filter(|c| distance(*c, point) < MATCH_RADII * radius)
             .min_by(|a, b| distance(*a, point).total_cmp(&distance(*b, point)))
     }
@@ -524,7 +557,7 @@ impl MichelsonAgent {
             .unwrap_or(self.mirror(k));
         self.before = [self.mirror(0), self.mirror(1)];
         self.set_mirror(k, u);
-        self.last = Step::Probe { k, parked: None };
+        self.last = Step::Relocate { k };
         self.action(false)
     }
 

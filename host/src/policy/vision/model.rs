@@ -184,6 +184,14 @@ pub const SAME_STEP: f64 = 1.0;
 /// Lost motion is estimated once this many clean sightings were made ...
 const LOST_MOTION_MIN_SIGHTINGS: usize = 8;
 
+/// A first dead band is taken only when it explains more than this many position noises of
+/// each sighting's miss (root mean square).
+const LOST_MOTION_WORTH_NOISES: f64 = 6.0;
+
+/// Plays whose misfits (sums of squared misses, px²) differ by less than this many
+/// squared position noises explain the sightings alike: the simpler one is kept.
+const LOST_MOTION_TIE_NOISES: f64 = 4.0;
+
 /// The change of a dead band its uncertainty is measured over, steps.
 const LOST_MOTION_DELTA: f64 = 1.0;
 
@@ -467,11 +475,20 @@ impl Tracker {
         Affine::fit(&self.points(), self.min_spread)
     }
 
-    /// The fitted model anchored at the latest clean sighting.
+    /// The fitted model anchored at the latest clean sighting the fit did not reject: one
+    /// it contradicts (another beam taken for this one) would carry its error into every
+    /// prediction.
     pub fn local_model(&self) -> Option<Affine> {
-        let model = self.model()?;
-        Some(match self.clean.last() {
-            Some(s) => model.anchored(self.effective(s, &self.loads(self.play)), s.image),
+        let (model, kept) = self.robust_fit()?;
+        let loads = self.loads(self.play);
+        let anchor = self
+            .clean
+            .iter()
+            .rev()
+            .map(|s| (self.effective(s, &loads), s.image))
+            .find(|point| kept.contains(point));
+        Some(match anchor {
+            Some((command, image)) => model.anchored(command, image),
             None => model,
         })
     }
@@ -548,7 +565,8 @@ impl Tracker {
         // them. Trimmed at the current play instead, the trim would drop the very
         // sightings the band displaced.
         let widest = play::widest_band(&self.path);
-        trial.play = play::best_play(self.play, &axes, widest, misfit(&trial));
+        let tolerance = LOST_MOTION_TIE_NOISES * self.noise * self.noise;
+        trial.play = play::best_play(self.play, &axes, widest, tolerance, misfit(&trial));
         let trimmed = trial.without_contradicted();
         if trimmed.clean.len() >= LOST_MOTION_MIN_SIGHTINGS {
             trial = trimmed;
@@ -557,7 +575,7 @@ impl Tracker {
         if !start.is_finite() {
             return;
         }
-        let found = play::best_play(trial.play, &axes, widest, misfit(&trial));
+        let found = play::best_play(trial.play, &axes, widest, tolerance, misfit(&trial));
         let end = misfit(&trial)(found);
         trial.play = found;
         let Some(error) = trial.lost_motion_error(&axes) else {
@@ -566,7 +584,12 @@ impl Tracker {
         let significant = axes.iter().all(|&a| {
             (found.band[a] - self.play.band[a]).abs() > LOST_MOTION_SIGNIFICANCE * error[a]
         });
-        if end < (1.0 - LOST_MOTION_GAIN) * start && significant {
+        // A first band must explain a real share of each sighting's miss: a screw's pitch
+        // error or hysteresis leaves a scatter of a few noise levels that a band can fit
+        // in part, and commands compensated for a band that is not there miss by half of it.
+        let explained = ((start - end).max(0.0) / trial.clean.len() as f64).sqrt();
+        let worth = self.play.band != [0.0; 2] || explained > LOST_MOTION_WORTH_NOISES * self.noise;
+        if end < (1.0 - LOST_MOTION_GAIN) * start && significant && worth {
             self.play = found;
         }
     }
@@ -1075,5 +1098,38 @@ mod tests {
         }
         forward.estimate_lost_motion();
         assert_eq!(forward.lost(), [0.0, 0.0]);
+    }
+
+    #[test]
+    fn a_sighting_of_another_beam_does_not_anchor_the_predictions() {
+        let truth = Affine {
+            offset: [900.0, 500.0],
+            gain: [[0.17, 0.012], [-0.01, -0.16]],
+        };
+        let mut tracker = Tracker::new([1500.0, 1500.0], [[-8000.0, 8000.0], [-6000.0, 6000.0]]);
+        let mut at = [0.0, 0.0];
+        for next in [
+            [1500.0, 0.0],
+            [1500.0, 1500.0],
+            [0.0, 1500.0],
+            [-1500.0, 0.0],
+            [0.0, -1500.0],
+            [800.0, 700.0],
+        ] {
+            tracker.moved(at, next);
+            at = next;
+            tracker.add_clean(next, truth.predict(next));
+        }
+        // The latest sighting is another beam, 150 px from where this one was.
+        let next = [400.0, -300.0];
+        tracker.moved(at, next);
+        let elsewhere = [truth.predict(next)[0] + 150.0, truth.predict(next)[1]];
+        tracker.add_clean(next, elsewhere);
+        let target = [1200.0, 300.0];
+        let predicted = tracker.predict(target).unwrap();
+        assert!(
+            distance(predicted, truth.predict(target)) < 1.0,
+            "{predicted:?}"
+        );
     }
 }
