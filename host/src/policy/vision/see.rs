@@ -126,7 +126,7 @@ fn locate(blob: &Beam, beams: &[Beam], moving: &[bool]) -> Seen {
 const MERGED_SIZE: f64 = 1.6;
 
 /// ... as does one with much more light than the change, when the beam moved clear of
-/// where it was.
+/// where it was (or came from or went out of the view).
 const MERGED_LIGHT: f64 = 1.4;
 
 /// A change within a stationary feature carrying less than this share of its light is
@@ -200,9 +200,12 @@ pub fn motion(
     let moving_after: Vec<bool> = (0..after.beams.len())
         .map(|j| !pairs.iter().any(|p| p.1 == j))
         .collect();
-    // Far apart, each change is the whole beam: a detection there with much more light
-    // holds another beam too.
-    let apart = matches!((from, to), (Some(f), Some(t)) if distance(f.centre, t.centre) > 2.0 * f.size().max(t.size()));
+    // Far apart, or come into the view or gone out of it, each change is the whole beam: a
+    // detection there with much more light holds another beam too.
+    let apart = match (from, to) {
+        (Some(f), Some(t)) => distance(f.centre, t.centre) > 2.0 * f.size().max(t.size()),
+        _ => true,
+    };
     let place = |blob: Beam, beams: &[Beam], moving: &[bool]| {
         let mut seen = locate(&blob, beams, moving);
         if apart && seen.whole && seen.beam.signal > MERGED_LIGHT * blob.signal {
