@@ -361,8 +361,7 @@ impl Tracker {
     }
 
     /// Where the mount really sat for sighting `s`, given the `loads` along the path: its
-    /// command, less how far the motor then led the load (the convention puts the dead
-    /// band's middle at the command).
+    /// command, less how far the motor then led the load.
     fn effective(&self, s: &Sight, loads: &[Vec2]) -> Vec2 {
         match (self.path.get(s.at), loads.get(s.at)) {
             (Some(motor), Some(load)) => [0, 1].map(|a| s.command[a] - (motor[a] - load[a])),
@@ -378,7 +377,12 @@ impl Tracker {
     /// The clean sightings a map is fitted to, on effective commands: the whole ones alone
     /// once they span both axes (a fitted centre of a cut spot is less exact), else all.
     fn points(&self) -> Vec<(Vec2, Vec2)> {
-        let loads = self.loads(self.play);
+        self.points_for(self.play)
+    }
+
+    /// [`Self::points`] with the mount's play taken as `play`.
+    fn points_for(&self, play: Play) -> Vec<(Vec2, Vec2)> {
+        let loads = self.loads(play);
         let point = |s: &Sight| (self.effective(s, &loads), s.image);
         let whole: Vec<(Vec2, Vec2)> = self.clean.iter().filter(|s| !s.fitted).map(point).collect();
         if whole.len() < self.clean.len() && Affine::fit(&whole, self.min_spread).is_some() {
@@ -552,31 +556,23 @@ impl Tracker {
         if trial.clean.len() < LOST_MOTION_MIN_SIGHTINGS {
             return;
         }
-        let misfit = |trial: &Tracker| {
-            let trial = trial.clone();
-            move |play: Play| -> f64 {
-                let mut candidate = trial.clone();
-                candidate.play = play;
-                candidate.residual().unwrap_or(f64::INFINITY)
-            }
-        };
         // The play every sighting suggests; then, at that play, without the sightings the
         // others contradict (two beams seen merged), which would pull the band to explain
         // them. Trimmed at the current play instead, the trim would drop the very
         // sightings the band displaced.
         let widest = play::widest_band(&self.path);
         let tolerance = LOST_MOTION_TIE_NOISES * self.noise * self.noise;
-        trial.play = play::best_play(self.play, &axes, widest, tolerance, misfit(&trial));
+        trial.play = play::best_play(self.play, &axes, widest, tolerance, |p| trial.misfit(p));
         let trimmed = trial.without_contradicted();
         if trimmed.clean.len() >= LOST_MOTION_MIN_SIGHTINGS {
             trial = trimmed;
         }
-        let start = misfit(&trial)(self.play);
+        let start = trial.misfit(self.play);
         if !start.is_finite() {
             return;
         }
-        let found = play::best_play(trial.play, &axes, widest, tolerance, misfit(&trial));
-        let end = misfit(&trial)(found);
+        let found = play::best_play(trial.play, &axes, widest, tolerance, |p| trial.misfit(p));
+        let end = trial.misfit(found);
         trial.play = found;
         let Some(error) = trial.lost_motion_error(&axes) else {
             return;
@@ -605,15 +601,23 @@ impl Tracker {
         kept
     }
 
-    /// The sum of squared misses of the least-squares map through every clean sighting.
-    fn residual(&self) -> Option<f64> {
-        let model = self.plain_model()?;
+    /// The sum of squared misses of the least-squares map through every clean sighting,
+    /// with the mount's play taken as `play`.
+    fn residual_for(&self, play: Play) -> Option<f64> {
+        let points = self.points_for(play);
+        let model = Affine::fit(&points, self.min_spread)?;
         Some(
-            self.points()
+            points
                 .iter()
                 .map(|(u, p)| distance(model.predict(*u), *p).powi(2))
                 .sum(),
         )
+    }
+
+    /// How badly `play` explains the clean sightings: [`Self::residual_for`], infinite
+    /// while they fit no map.
+    fn misfit(&self, play: Play) -> f64 {
+        self.residual_for(play).unwrap_or(f64::INFINITY)
     }
 
     /// The standard error of the lost motion on `axes`, steps: the fit's scatter over how
@@ -624,7 +628,7 @@ impl Tracker {
         // of the band.
         let variance = {
             let dof = (2 * self.clean.len()).saturating_sub(6 + axes.len()).max(1);
-            (self.residual()? / dof as f64).max(self.noise * self.noise)
+            (self.residual_for(self.play)? / dof as f64).max(self.noise * self.noise)
         };
         let mut error = [0.0; 2];
         for &a in axes {

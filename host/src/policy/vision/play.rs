@@ -116,66 +116,75 @@ pub fn best_play(
     for _ in 0..ROUNDS {
         for &axis in axes {
             for parameter in [Parameter::Band, Parameter::Start] {
-                let base = best;
-                let at = |value: f64| {
-                    let mut play = base;
-                    parameter.of(&mut play)[axis] = value;
-                    play
-                };
-                let (floor, ceiling) = parameter.range(widest[axis]);
-                let cell = (ceiling - floor) / (GRID_POINTS - 1) as f64;
-                let grid: Vec<(f64, f64)> = (0..GRID_POINTS)
-                    .map(|i| floor + cell * i as f64)
-                    .map(|value| (value, misfit(at(value))))
-                    .collect();
-                // A plateau's minimum is its first point.
-                let mut minima: Vec<(f64, f64)> = (0..grid.len())
-                    .filter(|&i| {
-                        let left = i == 0 || grid[i].1 < grid[i - 1].1;
-                        let right = grid.get(i + 1).is_none_or(|next| grid[i].1 <= next.1);
-                        left && right
-                    })
-                    .map(|i| grid[i])
-                    .collect();
-                minima.sort_by(|a, b| a.1.total_cmp(&b.1));
-                let current = parameter.of(&mut best)[axis];
-                let mut candidates = vec![(current, misfit(base))];
-                for &(value, value_misfit) in minima.iter().take(REFINED_MINIMA) {
-                    let (mut centre, mut lowest, mut width) = (value, value_misfit, cell);
-                    for _ in 1..PASSES {
-                        let (low, high) =
-                            ((centre - width).max(floor), (centre + width).min(ceiling));
-                        width = (high - low) / (GRID_POINTS - 1) as f64;
-                        for i in 0..GRID_POINTS {
-                            let value = low + width * i as f64;
-                            let value_misfit = misfit(at(value));
-                            if value_misfit < lowest {
-                                (centre, lowest) = (value, value_misfit);
-                            }
-                        }
-                    }
-                    candidates.push((centre, lowest));
-                }
-                // One candidate per basin, its lowest; then the simplest of those alike.
-                candidates.sort_by(|a, b| a.1.total_cmp(&b.1));
-                let mut basins: Vec<(f64, f64)> = Vec::new();
-                for candidate in candidates {
-                    if basins.iter().all(|b| (b.0 - candidate.0).abs() > cell) {
-                        basins.push(candidate);
-                    }
-                }
-                let lowest = basins.first().map_or(f64::INFINITY, |b| b.1);
-                if let Some(&(value, _)) = basins
-                    .iter()
-                    .filter(|b| b.1 <= lowest + tolerance)
-                    .min_by(|a, b| a.0.abs().total_cmp(&b.0.abs()))
-                {
-                    best = at(value);
-                }
+                best = best_value(best, axis, parameter, widest[axis], tolerance, &misfit);
             }
         }
     }
     best
+}
+
+/// `base` with `parameter` of `axis` (an axis whose widest band is `widest`) set to the
+/// value [`best_play`] takes for it, the others held.
+fn best_value(
+    base: Play,
+    axis: usize,
+    parameter: Parameter,
+    widest: f64,
+    tolerance: f64,
+    misfit: &impl Fn(Play) -> f64,
+) -> Play {
+    let at = |value: f64| {
+        let mut play = base;
+        parameter.of(&mut play)[axis] = value;
+        play
+    };
+    let (floor, ceiling) = parameter.range(widest);
+    let cell = (ceiling - floor) / (GRID_POINTS - 1) as f64;
+    let grid: Vec<(f64, f64)> = (0..GRID_POINTS)
+        .map(|i| floor + cell * i as f64)
+        .map(|value| (value, misfit(at(value))))
+        .collect();
+    // A plateau's minimum is its first point.
+    let mut minima: Vec<(f64, f64)> = (0..grid.len())
+        .filter(|&i| {
+            let left = i == 0 || grid[i].1 < grid[i - 1].1;
+            let right = grid.get(i + 1).is_none_or(|next| grid[i].1 <= next.1);
+            left && right
+        })
+        .map(|i| grid[i])
+        .collect();
+    minima.sort_by(|a, b| a.1.total_cmp(&b.1));
+    let mut current = base;
+    let mut candidates = vec![(parameter.of(&mut current)[axis], misfit(base))];
+    for &(value, value_misfit) in minima.iter().take(REFINED_MINIMA) {
+        let (mut centre, mut lowest, mut width) = (value, value_misfit, cell);
+        for _ in 1..PASSES {
+            let (low, high) = ((centre - width).max(floor), (centre + width).min(ceiling));
+            width = (high - low) / (GRID_POINTS - 1) as f64;
+            for i in 0..GRID_POINTS {
+                let value = low + width * i as f64;
+                let value_misfit = misfit(at(value));
+                if value_misfit < lowest {
+                    (centre, lowest) = (value, value_misfit);
+                }
+            }
+        }
+        candidates.push((centre, lowest));
+    }
+    // One candidate per basin, its lowest; then the simplest of those alike.
+    candidates.sort_by(|a, b| a.1.total_cmp(&b.1));
+    let mut basins: Vec<(f64, f64)> = Vec::new();
+    for candidate in candidates {
+        if basins.iter().all(|b| (b.0 - candidate.0).abs() > cell) {
+            basins.push(candidate);
+        }
+    }
+    let lowest = basins.first().map_or(f64::INFINITY, |b| b.1);
+    basins
+        .iter()
+        .filter(|b| b.1 <= lowest + tolerance)
+        .min_by(|a, b| a.0.abs().total_cmp(&b.0.abs()))
+        .map_or(base, |&(value, _)| at(value))
 }
 
 #[cfg(test)]
