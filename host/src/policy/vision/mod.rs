@@ -5,6 +5,7 @@
 //! with a further measurement, and declares done only when the images agree.
 
 mod cavity;
+mod lash;
 mod michelson;
 mod model;
 mod play;

@@ -2,16 +2,22 @@
 //! the near station of m's outgoing segment first, where a tilt moves the spot little:
 //! it finds the spot (searching outwards when it is off the sensor), learns the mirror's
 //! 2 x 2 response there from two probes (sized from the response measured so far: a
-//! cautious first one, then whatever moves the spot a useful share of the image) and
+//! cautious first one, then whatever moves the spot a useful share of the image; from the
+//! second mirror on it first assumes the previous mirror's response, scaled by the
+//! stations' distances, and probes only when a step shows that guess wrong) and
 //! centres it; then it moves to the far station, where the same tilt moves the spot
 //! farther by the ratio of the stations' distances (from the brief's bench geometry; when
 //! the bench did not give it, the far response is measured there), and centres it with
 //! that response, refined by Broyden updates. Features that stay put while the mirror
 //! tilts are stray light, remembered per station. Light lost at the far station sends the
 //! camera back to the near station. At C8, with a centred compact spot, it declares done.
+//! The servos work in where each mount's load is, not in the commands: a reversal that
+//! moved the spot less than the measured response says teaches the mount's dead band,
+//! which later commands go past the target by (see `lash`).
 
 use optalign_optics::{Frame, Station};
 
+use super::lash::Lash;
 use super::model::{Tracker, Vec2, column_norm, distance};
 use super::see::{View, motion, stationary_pairs};
 use super::servo::{Servo, Spot, useful_probe};
@@ -78,6 +84,10 @@ pub struct RelayAgent {
     /// tilt per step and pixel pitch are known: sizes the first probes.
     px_per_step_mm: Option<f64>,
     cumulative: [i32; 8],
+    /// Each mirror's lost motion, and where its load is.
+    lash: [Lash; 4],
+    /// The last action executed tilted the current mirror.
+    tilted: bool,
     station: usize,
     mirror: usize,
     phase: Phase,
@@ -89,8 +99,9 @@ pub struct RelayAgent {
     far: Servo,
     far_steps: usize,
     far_dark: usize,
-    /// The previous mirror's near response, px per step: sizes the next mirror's probes.
-    known_response: Option<f64>,
+    /// The latest near response measured (px per step) and its station: the next mirror's
+    /// first guess.
+    known_near: Option<([[f64; 2]; 2], usize)>,
     /// The last frame, the station it was taken at and the tilts then.
     previous: Option<(View, usize, [i32; 8])>,
     /// Stationary features seen per station (stray light), px.
@@ -115,6 +126,8 @@ impl RelayAgent {
                     2.0 * tilt * std::f64::consts::FRAC_1_SQRT_2 / pitch[0].max(pitch[1])
                 }),
             cumulative: [0; 8],
+            lash: [Lash::default(); 4],
+            tilted: false,
             station: 7,
             mirror: 0,
             phase: Phase::Near,
@@ -124,23 +137,23 @@ impl RelayAgent {
             far: Servo::new(1.0, [1.0, 1.0], None),
             far_steps: 0,
             far_dark: 0,
-            known_response: None,
+            known_near: None,
             previous: None,
             stray: Vec::new(),
             radius: None,
             last: None,
         };
-        agent.near = agent.new_servo(None);
+        agent.near = agent.new_near_servo();
         agent.search = agent.new_search();
         agent
     }
 
-    /// The spot's nominal travel per step at the current mirror's near station, px, when
-    /// the bench's geometry gives it.
-    fn nominal_response(&self) -> Option<f64> {
+    /// The spot's nominal travel per step at `station`, px, when the bench's geometry
+    /// gives it.
+    fn nominal_response(&self, station: usize) -> Option<f64> {
         self.px_per_step_mm
             .zip(self.distances)
-            .map(|(r, d)| r * d[2 * self.mirror])
+            .map(|(r, d)| r * d[station])
     }
 
     /// The search for the current mirror's spot: on a grid whose gaps the image spans at
@@ -148,7 +161,10 @@ impl RelayAgent {
     /// of the range, growing while nothing shows.
     fn new_search(&self) -> Tracker {
         let bound = f64::from(self.limits.max_cumulative);
-        match self.nominal_response().zip(self.image_side_px) {
+        match self
+            .nominal_response(2 * self.mirror)
+            .zip(self.image_side_px)
+        {
             Some((response, side)) => {
                 let probe = (SEARCH_GRID_SHARE * side / response).clamp(1.0, self.widest_search());
                 Tracker::new([probe, probe], [[-bound, bound], [-bound, bound]])
@@ -162,7 +178,13 @@ impl RelayAgent {
         MAX_SEARCH_SHARE * f64::from(self.limits.max_cumulative)
     }
 
+    /// Where mirror `m`'s load is (vertical, horizontal), steps.
     fn tilt_of(&self, m: usize) -> Vec2 {
+        self.lash[m].load()
+    }
+
+    /// The cumulative command of mirror `m` (vertical, horizontal), steps.
+    fn command_of(&self, m: usize) -> Vec2 {
         [
             f64::from(self.cumulative[2 * m]),
             f64::from(self.cumulative[2 * m + 1]),
@@ -177,6 +199,10 @@ impl RelayAgent {
         let view = View::new(frame);
         let spot = self.find_spot(&view);
         self.previous = Some((view, self.station, self.cumulative));
+        if self.tilted {
+            let [w, h] = self.previous.as_ref().expect("just set").0.size();
+            self.learn_lost_motion(spot, w.min(h));
+        }
         let (size, centre) = {
             let v = &self.previous.as_ref().expect("just set").0;
             (v.size(), v.centre())
@@ -262,27 +288,64 @@ impl RelayAgent {
         strongest(&candidates)
     }
 
+    /// What the last tilt showed of the current mirror's lost motion, by the response of
+    /// the station's servo.
+    fn learn_lost_motion(&mut self, spot: Option<Beam>, side: f64) {
+        let servo = match self.phase {
+            Phase::Near => &self.near,
+            Phase::Far => &self.far,
+        };
+        let tilt = self.tilt_of(self.mirror);
+        if let Some((from, moved)) = spot
+            .map(|s| self.estimate(&s))
+            .and_then(|seen| servo.moved_since_last(tilt, &seen, side))
+        {
+            self.lash[self.mirror].learn(from, moved);
+        }
+    }
+
     /// The task's centring tolerance, px.
     fn tolerance(&self) -> f64 {
         self.limits.centred_tolerance_px
     }
 
-    /// A servo for the current mirror, with a known response (the far station's, scaled
-    /// from the near one) or probes sized for a useful first move: at the bench's nominal
-    /// response, else at the previous mirror's measured one, else a cautious share of the
-    /// range.
-    fn new_servo(&self, gain: Option<[[f64; 2]; 2]>) -> Servo {
+    /// A servo for the current mirror at `station`, with a known response (the far
+    /// station's, scaled from the near one) or probes sized for a useful first move: at the
+    /// bench's nominal response, else at the latest measured one, else a cautious share of
+    /// the range.
+    fn new_servo(&self, station: usize, gain: Option<[[f64; 2]; 2]>) -> Servo {
         let range = 2.0 * f64::from(self.limits.max_cumulative);
         let bounds = PROBE_SHARES.map(|share| share * range);
-        let side = self
-            .previous
-            .as_ref()
-            .map(|(view, _, _)| view.size()[0].min(view.size()[1]));
-        let probe = match (self.nominal_response().or(self.known_response), side) {
+        let side = self.image_side_px.or_else(|| {
+            self.previous
+                .as_ref()
+                .map(|(view, _, _)| view.size()[0].min(view.size()[1]))
+        });
+        let known = self.assumed_gain(station).map(column_norm);
+        let probe = match (self.nominal_response(station).or(known), side) {
             (Some(response), Some(side)) => useful_probe(side, response),
             _ => CAUTIOUS_SHARE * range,
         };
         Servo::new(probe, bounds, gain)
+    }
+
+    /// The servo of the current mirror's near station: it starts from the latest near
+    /// response measured, as a guess, when there is one.
+    fn new_near_servo(&self) -> Servo {
+        let near_station = 2 * self.mirror;
+        let servo = self.new_servo(near_station, None);
+        match self.assumed_gain(near_station) {
+            Some(gain) => servo.assume(gain),
+            None => servo,
+        }
+    }
+
+    /// The latest near response measured, scaled to `station` by the stations' distances
+    /// when the bench gives them.
+    fn assumed_gain(&self, station: usize) -> Option<[[f64; 2]; 2]> {
+        let (gain, measured_at) = self.known_near?;
+        let ratio = self.distances.map_or(1.0, |d| d[station] / d[measured_at]);
+        Some(gain.map(|row| row.map(|v| v * ratio)))
     }
 
     /// Where the spot is: its centroid, and whether it is whole enough to steer by (cut by
@@ -314,13 +377,13 @@ impl RelayAgent {
         {
             let gain = self.near.gain();
             if let Some(g) = gain {
-                self.known_response = Some(column_norm(g));
+                self.known_near = Some((g, near_station));
             }
             let far_gain = gain.zip(self.distances).map(|(g, d)| {
                 let ratio = d[near_station + 1] / d[near_station];
                 g.map(|row| row.map(|v| v * ratio))
             });
-            self.far = self.new_servo(far_gain);
+            self.far = self.new_servo(near_station + 1, far_gain);
             self.far_steps = 0;
             self.far_dark = 0;
             self.phase = Phase::Far;
@@ -331,7 +394,7 @@ impl RelayAgent {
         }
         // Never seen here: search outwards around the start, wider each ring.
         self.search.add_missing(u);
-        if self.search.missing.len() > 1 && self.nominal_response().is_none() {
+        if self.search.missing.len() > 1 && self.nominal_response(2 * self.mirror).is_none() {
             let widest = self.widest_search();
             let probe = self.search.probe.map(|p| (p * SEARCH_GROWTH).min(widest));
             self.search.set_probe(probe);
@@ -371,13 +434,13 @@ impl RelayAgent {
             self.far_dark += 1;
             if self.far_dark == 1 || self.far_steps > MAX_FAR_STEPS {
                 self.phase = Phase::Near;
-                self.near = self.new_servo(None);
+                self.near = self.new_near_servo();
                 return self.act(measure(2 * self.mirror));
             }
         }
         if self.far_steps > MAX_FAR_STEPS {
             self.phase = Phase::Near;
-            self.near = self.new_servo(None);
+            self.near = self.new_near_servo();
             return self.act(measure(2 * self.mirror));
         }
         match self.far.next(centre) {
@@ -394,17 +457,19 @@ impl RelayAgent {
         self.phase = Phase::Near;
         self.search = self.new_search();
         self.near_start = self.tilt_of(self.mirror);
-        self.near = self.new_servo(None);
+        self.near = self.new_near_servo();
     }
 
-    /// Tilts the current mirror to cumulative `target` (vertical, horizontal), within bounds.
+    /// Tilts the current mirror's load to `target` (vertical, horizontal), with the
+    /// command going past it by the lost motion, within bounds.
     fn tilt_to(&mut self, target: Vec2) -> RelayAction {
         let m = self.mirror;
         let step = f64::from(self.limits.max_step);
         let bound = f64::from(self.limits.max_cumulative);
-        let u = self.tilt_of(m);
+        let u = self.command_of(m);
+        let command = self.lash[m].command_for(target);
         let delta = |a: usize| {
-            let t = target[a].clamp(-bound, bound);
+            let t = command[a].clamp(-bound, bound);
             (t - u[a]).clamp(-step, step).round() as i32
         };
         self.act(RelayAction::Tilt {
@@ -421,14 +486,19 @@ impl RelayAgent {
 
     /// Books the last action, now that it was executed.
     fn apply_last(&mut self) {
+        self.tilted = false;
         match self.last.take() {
             Some(RelayAction::Tilt {
                 mirror,
                 vertical,
                 horizontal,
             }) => {
-                self.cumulative[2 * usize::from(mirror)] += vertical;
-                self.cumulative[2 * usize::from(mirror) + 1] += horizontal;
+                let m = usize::from(mirror);
+                self.cumulative[2 * m] += vertical;
+                self.cumulative[2 * m + 1] += horizontal;
+                let command = self.command_of(m);
+                self.lash[m].moved(command);
+                self.tilted = m == self.mirror;
             }
             Some(RelayAction::Measure { station }) => self.station = station.index(),
             _ => {}

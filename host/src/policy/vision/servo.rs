@@ -6,11 +6,14 @@
 //! spots. When the sensor's edge cuts the spot, what shows of it moves the right way but
 //! less than the beam across the edge: the response is then taken as the rotation (or
 //! mirror image) that best fits the two probes, at the larger of their scales, because a
-//! mount's two tilt axes deflect the beam at right angles; it serves until the spot shows
-//! whole, when the probes are made again. A probe that lost the spot is tried the other
-//! way, then shorter; one that hardly moved it, longer; a response from a cut spot that
-//! proved wrong is probed again with longer probes, which show more than the ones that
-//! misled it, and the probes of a spot that shows whole are sized from the rough response.
+//! mount's two tilt axes deflect the beam at right angles. A response that was not measured
+//! on whole spots here (a cut spot's fit, or one assumed beforehand, such as another
+//! mirror's) is used until a step between whole spots lands where it predicted; a step
+//! that loses the spot or does no good sends the servo back to probing, with probes sized
+//! from the response that failed. A probe that lost the
+//! spot is tried the other way, then shorter; one that hardly moved it, longer; a response
+//! from a cut spot that proved wrong is probed again with longer probes, which show more
+//! than the ones that misled it.
 
 use nalgebra::Matrix2;
 
@@ -32,6 +35,22 @@ const PROBE_VIEW_SHARE: f64 = 0.15;
 
 /// The trust radius starts at this many probe lengths.
 const START_RADIUS_PROBES: f64 = 4.0;
+
+/// An assumed response is confirmed by a step between whole spots that lands within this
+/// share of the predicted move from where it predicted.
+const CONFIRM_SHARE: f64 = 0.5;
+
+/// How far the response can be trusted.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Trust {
+    /// Measured here on whole spots, or given as known.
+    Measured,
+    /// Fitted to probes of a cut spot: it points the way while the spot is cut.
+    Cut,
+    /// Not measured here on whole spots (a cut spot's fit once the spot shows whole, or
+    /// given as a guess): the next step between whole spots confirms or refutes it.
+    Assumed,
+}
 
 /// Where the spot showed.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -70,8 +89,7 @@ pub struct Servo {
     best: Option<Best>,
     /// The response (px per step, columns per axis), once known.
     gain: Option<[[f64; 2]; 2]>,
-    /// The response came from cut spots: probe again once the spot shows whole.
-    rough: bool,
+    trust: Trust,
     /// Each axis's probed response, and whether a cut spot took part.
     columns: [Option<(Vec2, bool)>; 2],
     probe: f64,
@@ -93,7 +111,7 @@ impl Servo {
         Self {
             best: None,
             gain,
-            rough: false,
+            trust: Trust::Measured,
             columns: [None; 2],
             probe,
             radius: (START_RADIUS_PROBES * probe).clamp(bounds[0], bounds[1]),
@@ -104,13 +122,51 @@ impl Servo {
         }
     }
 
+    /// The same servo starting from a guess of the response (another mirror's, say), used
+    /// until the first step between whole spots confirms or refutes it.
+    pub fn assume(mut self, gain: [[f64; 2]; 2]) -> Self {
+        self.gain = Some(gain);
+        self.trust = Trust::Assumed;
+        self
+    }
+
     pub fn best(&self) -> Option<Best> {
         self.best
     }
 
-    /// The response, when it was measured on whole spots.
+    /// How far the tilt really moved since the last sighting, by the measured response,
+    /// for a spot now `seen` where it was whole both times, when the tilt was meant to move
+    /// from there to `tilt` by enough to show on an image whose shorter side is `side`:
+    /// the tilt of that sighting and the move.
+    pub fn moved_since_last(&self, tilt: Vec2, seen: &Spot, side: f64) -> Option<(Vec2, Vec2)> {
+        let gain = self.gain.filter(|_| self.trust == Trust::Measured)?;
+        let (from, was) = self.last.filter(|(_, was)| was.whole && seen.whole)?;
+        let response = Affine {
+            offset: was.at,
+            gain,
+        };
+        let meant = response.predict([tilt[0] - from[0], tilt[1] - from[1]]);
+        if distance(meant, was.at) < MIN_MOVE_SHARE * side {
+            return None;
+        }
+        Some((from, response.solve(seen.at)?))
+    }
+
+    /// The response, unless it came from a cut spot's probes.
     pub fn gain(&self) -> Option<[[f64; 2]; 2]> {
-        self.gain.filter(|_| !self.rough)
+        self.gain.filter(|_| self.trust != Trust::Cut)
+    }
+
+    /// Forgets a response that proved wrong: the next commands probe again from the best
+    /// tilt, with probes that would move the spot a useful share of the image at its scale.
+    fn forget_gain(&mut self, side: f64) {
+        if let Some(gain) = self.gain.take() {
+            self.probe = useful_probe(side, column_norm(gain).max(1e-9))
+                .clamp(self.bounds[0], self.bounds[1]);
+        }
+        self.trust = Trust::Measured;
+        self.columns = [None; 2];
+        self.pending = Pending::Nothing;
     }
 
     /// How far a spot is from `target`, as the servo ranks them: a whole spot by its
@@ -171,21 +227,13 @@ impl Servo {
                     && self.gain.is_none()
                 {
                     let measured = [[c0[0], c1[0]], [c0[1], c1[1]]];
-                    self.rough = r0 || r1;
-                    self.gain = Some(if self.rough {
+                    let cut = r0 || r1;
+                    self.trust = if cut { Trust::Cut } else { Trust::Measured };
+                    self.gain = Some(if cut {
                         rotation_fit(measured)
                     } else {
                         measured
                     });
-                }
-            }
-            (Pending::Step, _, _) => {
-                if let (Some((before, was)), Some(now), Some(gain)) =
-                    (self.last, seen, &mut self.gain)
-                    && was.whole
-                    && now.whole
-                {
-                    broyden(gain, before, was.at, tilt, now.at);
                 }
             }
             _ => {}
@@ -195,18 +243,15 @@ impl Servo {
             (Some(_), None) => true,
             (None, _) => false,
         };
+        if self.pending == Pending::Step {
+            self.learn_from_step(tilt, seen, better, side);
+        }
         if let (true, Some(spot)) = (better, seen) {
             let error = self.error(&spot, target, side);
-            if self.rough && spot.whole {
-                // Shows whole now: measure the response properly from here, with probes
-                // that move the spot a useful share of the image at the rough response.
-                if let Some(gain) = self.gain {
-                    self.probe = useful_probe(side, column_norm(gain).max(1e-9))
-                        .clamp(self.bounds[0], self.bounds[1]);
-                }
-                self.gain = None;
-                self.rough = false;
-                self.columns = [None; 2];
+            if self.trust == Trust::Cut && spot.whole {
+                // Shows whole now: the cut spot's fit serves as a guess that the next step
+                // between whole spots confirms or refutes.
+                self.trust = Trust::Assumed;
             }
             self.best = Some(Best { tilt, spot, error });
             if self.pending == Pending::Step {
@@ -217,6 +262,41 @@ impl Servo {
         }
         if let Some(s) = seen {
             self.last = Some((tilt, s));
+        }
+    }
+
+    /// What a step from the last spot seen to `tilt` (where `seen` showed, `better` than
+    /// the best before) says of the response: between whole spots it refines it (Broyden);
+    /// an assumed one is confirmed by a step between whole spots that lands where it
+    /// predicted, kept on trial by one that missed but still did good, and refuted by one
+    /// that lost the spot or did no good.
+    fn learn_from_step(&mut self, tilt: Vec2, seen: Option<Spot>, better: bool, side: f64) {
+        let Some(gain) = self.gain else {
+            return;
+        };
+        let between_whole = match (self.last, seen) {
+            (Some((from, was)), Some(now)) if was.whole && now.whole => Some((from, was, now)),
+            _ => None,
+        };
+        if self.trust == Trust::Assumed {
+            let landed_as_predicted = between_whole.is_some_and(|(from, was, now)| {
+                let predicted = predicted_at(&gain, from, was, tilt);
+                let moved = distance(predicted, was.at);
+                distance(predicted, now.at) < CONFIRM_SHARE * moved
+            });
+            if landed_as_predicted {
+                self.trust = Trust::Measured;
+            } else if !(seen.is_some() && better) {
+                self.forget_gain(side);
+                return;
+            }
+        }
+        // A move too short to show beyond the centroids' noise teaches nothing.
+        if let (Some((from, was, now)), Some(gain)) = (between_whole, &mut self.gain)
+            && distance(was.at, now.at).max(distance(predicted_at(gain, from, was, tilt), was.at))
+                >= MIN_MOVE_SHARE * side
+        {
+            broyden(gain, from, was.at, tilt, now.at);
         }
     }
 
@@ -266,7 +346,7 @@ impl Servo {
                     // just seen off the target: the response is wrong. Probe again from the
                     // best tilt.
                     self.gain = None;
-                    self.rough = false;
+                    self.trust = Trust::Measured;
                     self.columns = [None; 2];
                     self.pending = Pending::Nothing;
                     if !best.spot.whole {
@@ -285,6 +365,15 @@ impl Servo {
 /// `side` px at a response of `response` px per step.
 pub fn useful_probe(side: f64, response: f64) -> f64 {
     PROBE_VIEW_SHARE * side / response
+}
+
+/// Where `gain` says a spot seen as `was` at tilt `from` shows at tilt `to`.
+fn predicted_at(gain: &[[f64; 2]; 2], from: Vec2, was: Spot, to: Vec2) -> Vec2 {
+    Affine {
+        offset: was.at,
+        gain: *gain,
+    }
+    .predict([to[0] - from[0], to[1] - from[1]])
 }
 
 /// The servo's ranking of what was seen (`None` when nothing was).
@@ -357,7 +446,10 @@ mod tests {
     }
 
     fn run(bench: &Bench, probe: f64) -> (usize, Vec2) {
-        let mut servo = Servo::new(probe, [50.0, 20_000.0], None);
+        run_servo(bench, Servo::new(probe, [50.0, 20_000.0], None))
+    }
+
+    fn run_servo(bench: &Bench, mut servo: Servo) -> (usize, Vec2) {
         let target = [320.0, 240.0];
         let mut tilt = [0.0, 0.0];
         for step in 1..=30 {
@@ -424,6 +516,30 @@ mod tests {
             };
             let (steps, at) = run(&bench, 1875.0);
             assert!(steps <= 12, "{gain:?}: {steps} steps, at {at:?}");
+        }
+    }
+
+    #[test]
+    fn a_right_guess_of_the_response_saves_the_probes_and_a_wrong_one_is_dropped() {
+        let gain = [[0.0, -0.03], [0.025, 0.0]];
+        let bench = Bench {
+            offset: [150.0, 330.0],
+            gain,
+        };
+        let servo = || Servo::new(1875.0, [50.0, 20_000.0], None);
+        let (probed, _) = run(&bench, 1875.0);
+        // Another mirror's response, a fifth off: no probes, so fewer steps.
+        let near = gain.map(|row| row.map(|v| 1.2 * v));
+        let (guessed, _) = run_servo(&bench, servo().assume(near));
+        assert!(
+            guessed < probed,
+            "{guessed} steps with the guess, {probed} probing"
+        );
+        // A guess with an axis the wrong way round and one turned a right angle: both are
+        // refuted by the spot and the servo probes its way to the centre.
+        for wrong in [[[0.0, 0.03], [0.025, 0.0]], [[0.025, 0.0], [0.0, 0.03]]] {
+            let (steps, at) = run_servo(&bench, servo().assume(wrong));
+            assert!(steps <= probed + 4, "{wrong:?}: {steps} steps, at {at:?}");
         }
     }
 
