@@ -192,6 +192,8 @@ impl ScenarioFile {
                     relay_sides_mm: Some([r.long_side_mm, r.short_side_mm]),
                     mirror_diameter_mm: Some(r.mirror_diameter_mm),
                     station_distances_mm: Some(r.station_distances_mm),
+                    placement_repeatability_mm: Some(r.camera.placement_position_std_mm)
+                        .filter(|spread| *spread > 0.0),
                 }
             }
         }

@@ -230,6 +230,24 @@ async fn the_vision_agent_aligns_the_relay_with_every_response_a_quarter_and_fou
 }
 
 #[tokio::test]
+async fn the_vision_agent_aligns_the_relay_when_the_camera_lands_five_times_less_repeatably() {
+    // Each placement of the camera is off by about 50 px: one image at C8 cannot tell where
+    // the beam is to within the 50 px tolerance, so the agent averages as many placements as
+    // the brief's repeatability calls for (seeds 0, 3 and 5 ended dark, 80 px and 117 px off
+    // when it trusted one), and a spot lost at a far station is searched for there.
+    let scenario = Knob::PlacementError
+        .apply(&ScenarioFile::default(), 5.0)
+        .expect("a valid scale");
+    for seed in [0, 3, 5] {
+        let summary = run_on(TaskKind::Relay, seed, scenario.clone(), None).await;
+        assert!(
+            summary.success && summary.declared_done,
+            "seed {seed}: {summary:?}"
+        );
+    }
+}
+
+#[tokio::test]
 async fn the_vision_agent_aligns_mounts_with_300_steps_of_uncompensated_backlash() {
     // The agent measures the dead band from reversals that moved the beam less than its
     // map predicted, and its commands take it up (without that, seven Michelson runs in ten

@@ -22,6 +22,10 @@ pub struct BenchGeometry {
     pub mirror_diameter_mm: Option<f64>,
     /// Relay: each station's distance from the mirror that starts its segment, mm (C1..C8).
     pub station_distances_mm: Option<[f64; 8]>,
+    /// Relay: how repeatably the camera mover places the camera at a station, mm (the
+    /// standard deviation of its position across the beam, per axis, from one placement to
+    /// the next).
+    pub placement_repeatability_mm: Option<f64>,
 }
 
 impl BenchGeometry {
@@ -51,6 +55,9 @@ impl BenchGeometry {
         }
         if let Some(d) = self.mirror_diameter_mm {
             positive("mirror_diameter_mm", d)?;
+        }
+        if let Some(spread) = self.placement_repeatability_mm {
+            positive("placement_repeatability_mm", spread)?;
         }
         if let Some(distances) = self.station_distances_mm {
             for (i, d) in distances.iter().enumerate() {

@@ -118,7 +118,7 @@ const SEARCH_RINGS: i32 = 12;
 
 /// The commands of a square grid of `spacing` around `centre`, ring by ring outwards
 /// (ring k: the 8k grid points k steps away along the farther axis).
-fn square_rings(centre: Vec2, spacing: Vec2, multiples: RangeInclusive<i32>) -> Vec<Vec2> {
+pub fn square_rings(centre: Vec2, spacing: Vec2, multiples: RangeInclusive<i32>) -> Vec<Vec2> {
     multiples
         .flat_map(|k| {
             (-k..=k)

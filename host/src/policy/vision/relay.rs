@@ -11,6 +11,9 @@
 //! that response, refined by Broyden updates. Features that stay put while the mirror
 //! tilts are stray light, remembered per station. Light lost at the far station sends the
 //! camera back to the near station. At C8, with a centred compact spot, it declares done.
+//! Every move of the camera places it a little differently: at C8, where the result is
+//! judged, the spot's place is averaged over as many placements as the camera mover's
+//! repeatability (from the brief, or the spread the visits show) calls for.
 //! The servos work in where each mount's load is, not in the commands: a reversal that
 //! moved the spot less than the measured response says teaches the mount's dead band,
 //! which later commands go past the target by (see `lash`).
@@ -18,7 +21,7 @@
 use optalign_optics::{Frame, Station};
 
 use super::lash::Lash;
-use super::model::{Tracker, Vec2, column_norm, distance};
+use super::model::{Affine, Tracker, Vec2, column_norm, distance, square_rings};
 use super::see::{View, motion, stationary_pairs};
 use super::servo::{Servo, Spot, useful_probe};
 use crate::imaging::Beam;
@@ -57,9 +60,20 @@ const NEAR_CENTRED_SHARE: f64 = 0.1;
 /// Steps at a far station before going back to the near station to start again.
 const MAX_FAR_STEPS: usize = 10;
 
+/// A spot not seen at the far station is looked for in views around the expected one, in
+/// rings of this many views' widths and heights ...
+const FAR_SEARCH_RINGS: i32 = 2;
+
+/// ... this share of an image apart, so that neighbouring views overlap.
+const FAR_SEARCH_OVERLAP: f64 = 0.8;
+
 /// A feature that moved with a tilt is the beam only with at least this share of the
 /// strongest feature's light.
 const MOVED_SHARE: f64 = 0.3;
+
+/// The spot's place at C8 is averaged over enough placements of the camera that their
+/// error, this many standard deviations of it, stays within the centring tolerance.
+const PLACEMENT_SIGMAS: f64 = 3.0;
 
 /// A stationary feature is remembered within this many beam radii.
 const STRAY_RADII: f64 = 0.5;
@@ -78,6 +92,12 @@ pub struct RelayAgent {
     limits: RelayLimits,
     /// Each station's distance from the mirror that starts its segment, when known.
     distances: Option<[f64; 8]>,
+    /// The camera mover's repeatability, px per axis, when the bench's geometry gives it.
+    placement_px: Option<f64>,
+    /// C8's placements: the load and where the spot showed whole, latest per placement.
+    placements: Vec<(Vec2, Vec2)>,
+    /// The camera was moved to its station since the last whole spot was booked there.
+    placed: bool,
     /// The image's shorter side, px, when the bench's geometry gives it.
     image_side_px: Option<f64>,
     /// The spot's expected travel per step at 1 mm from the mirror, px, when the bench's
@@ -99,6 +119,9 @@ pub struct RelayAgent {
     far: Servo,
     far_steps: usize,
     far_dark: usize,
+    /// Where the load was when the camera went to the far station (the centre of a search
+    /// there).
+    far_start: Vec2,
     /// The latest near response measured (px per step) and its station: the next mirror's
     /// first guess.
     known_near: Option<([[f64; 2]; 2], usize)>,
@@ -117,6 +140,12 @@ impl RelayAgent {
             limits: limits.clone(),
             distances: geometry.station_distances_mm,
             image_side_px: geometry.image_px.map(|[w, h]| f64::from(w.min(h))),
+            placement_px: geometry
+                .placement_repeatability_mm
+                .zip(geometry.pixel_pitch_mm())
+                .map(|(spread, pitch)| spread / pitch[0].min(pitch[1])),
+            placements: Vec::new(),
+            placed: false,
             px_per_step_mm: geometry
                 .tilt_rad_per_step
                 .zip(geometry.pixel_pitch_mm())
@@ -137,6 +166,7 @@ impl RelayAgent {
             far: Servo::new(1.0, [1.0, 1.0], None),
             far_steps: 0,
             far_dark: 0,
+            far_start: [0.0; 2],
             known_near: None,
             previous: None,
             stray: Vec::new(),
@@ -386,6 +416,7 @@ impl RelayAgent {
             self.far = self.new_servo(near_station + 1, far_gain);
             self.far_steps = 0;
             self.far_dark = 0;
+            self.far_start = u;
             self.phase = Phase::Far;
             return self.act(measure(near_station + 1));
         }
@@ -404,52 +435,145 @@ impl RelayAgent {
     }
 
     /// At the far station: the servo drives the spot to the centre with the response scaled
-    /// from the near station (or probed here, without the bench's distances). Dark: back to
-    /// the near station once, then the servo's own search from the best tilt.
+    /// from the near station (or probed here, without the bench's distances). Dark, with
+    /// that response: a search of the views around; when it finds nothing, or after too
+    /// many steps, back to the near station to start again.
     fn far_phase(&mut self, spot: Option<Beam>, centre: Vec2, size: Vec2) -> RelayAction {
         let u = self.tilt_of(self.mirror);
         let side = size[0].min(size[1]);
         let seen = spot.map(|s| self.estimate(&s));
-        self.far.observe(u, seen, centre, side);
-        let tolerance = if self.mirror == 3 {
+        let last = self.mirror == 3;
+        if last && self.placed && self.far.best().is_some() {
+            // A new placement: what the servo saw in the last one is off by their difference.
+            self.far = self.new_servo(7, self.far.gain());
+        }
+        // Where the spot sits in this placement when the average of the placements is
+        // centred, at C8 when the camera mover's repeatability calls for more than one;
+        // elsewhere, the centre.
+        if let Some(s) = seen.filter(|s| s.whole && last) {
+            self.book_placement(u, s.at);
+        }
+        let target = match seen.filter(|s| s.whole && last && self.placements_needed() > 1) {
+            Some(s) => {
+                let average = self.placements_average(u).unwrap_or(s.at);
+                [
+                    centre[0] + s.at[0] - average[0],
+                    centre[1] + s.at[1] - average[1],
+                ]
+            }
+            None => centre,
+        };
+        self.far.observe(u, seen, target, side);
+        let tolerance = if last {
             DONE_SHARE * self.tolerance()
         } else {
             PASS_SHARE * self.tolerance()
         };
         // At C8 the spot must also be compact (a speckle cloud is no aligned beam).
-        let compact = spot.is_some_and(|s| s.localised) || self.mirror < 3;
+        let compact = spot.is_some_and(|s| s.localised) || !last;
         if let Some(s) = seen
             && s.whole
             && compact
-            && distance(s.at, centre) < tolerance
+            && distance(s.at, target) < tolerance
         {
-            if self.mirror == 3 {
-                return self.act(RelayAction::Done);
-            }
-            self.next_mirror();
-            return self.act(measure(2 * self.mirror));
-        }
-        self.far_steps += 1;
-        if self.far.best().is_none() {
-            self.far_dark += 1;
-            if self.far_dark == 1 || self.far_steps > MAX_FAR_STEPS {
-                self.phase = Phase::Near;
-                self.near = self.new_near_servo();
+            if !last {
+                self.next_mirror();
                 return self.act(measure(2 * self.mirror));
             }
+            if self.placements.len() >= self.placements_needed() {
+                return self.act(RelayAction::Done);
+            }
+            // Centred in this placement, not yet on average over enough of them: place
+            // the camera again (by way of C7).
+            return self.act(measure(6));
         }
-        if self.far_steps > MAX_FAR_STEPS {
-            self.phase = Phase::Near;
-            self.near = self.new_near_servo();
-            return self.act(measure(2 * self.mirror));
+        if self.far.best().is_none() {
+            self.far_dark += 1;
+            if let Some(next) = self.far_search(size) {
+                return self.tilt_to(next);
+            }
+        } else {
+            self.far_steps += 1;
         }
-        match self.far.next(centre) {
-            Some(next) => self.tilt_to(next),
-            None => {
+        match self.far.next(target) {
+            Some(next) if self.far_steps <= MAX_FAR_STEPS => self.tilt_to(next),
+            _ => {
                 self.phase = Phase::Near;
+                self.near = self.new_near_servo();
                 self.act(measure(2 * self.mirror))
             }
         }
+    }
+
+    /// Books where the spot showed whole at load `u` in the current placement at C8.
+    fn book_placement(&mut self, u: Vec2, at: Vec2) {
+        if self.placed || self.placements.is_empty() {
+            self.placements.push((u, at));
+        } else if let Some(latest) = self.placements.last_mut() {
+            *latest = (u, at);
+        }
+        self.placed = false;
+    }
+
+    /// Where the spot shows at load `u` on average over C8's placements (each carried to
+    /// `u` by C8's response), when the response is known.
+    fn placements_average(&self, u: Vec2) -> Option<Vec2> {
+        let gain = self.far.gain()?;
+        let n = self.placements.len() as f64;
+        let mut sum = [0.0; 2];
+        for (load, at) in &self.placements {
+            let carried = Affine { offset: *at, gain }.predict([u[0] - load[0], u[1] - load[1]]);
+            sum = [sum[0] + carried[0], sum[1] + carried[1]];
+        }
+        Some(sum.map(|v| v / n))
+    }
+
+    /// How many placements at C8 to average: enough for the camera mover's repeatability
+    /// (the brief's, or what placements made one after the other without a tilt between
+    /// them show, when that is larger).
+    fn placements_needed(&self) -> usize {
+        let spread = self
+            .placement_px
+            .unwrap_or(0.0)
+            .max(self.placements_spread());
+        let needed = (PLACEMENT_SIGMAS * spread / self.tolerance()).powi(2);
+        (needed.ceil() as usize).max(1)
+    }
+
+    /// The camera mover's repeatability as C8's placements show it, px per axis: from
+    /// consecutive placements at the same load (their difference holds two placements'
+    /// errors); 0 before there are any.
+    fn placements_spread(&self) -> f64 {
+        let squares: Vec<f64> = self
+            .placements
+            .windows(2)
+            .filter(|pair| distance(pair[0].0, pair[1].0) < 1.0)
+            .map(|pair| distance(pair[0].1, pair[1].1).powi(2))
+            .collect();
+        if squares.is_empty() {
+            return 0.0;
+        }
+        (squares.iter().sum::<f64>() / (4.0 * squares.len() as f64)).sqrt()
+    }
+
+    /// The next tilt of a search for a spot not seen at the far station, when its response
+    /// is known: views tiling the plane around where the spot was expected, the nearest
+    /// first, each overlapping its neighbours. `None` once they were all looked at.
+    fn far_search(&self, size: Vec2) -> Option<Vec2> {
+        let gain = self.far.gain()?;
+        let mut views = square_rings([0.0; 2], [1.0; 2], 1..=FAR_SEARCH_RINGS);
+        views.sort_by(|a, b| a[0].hypot(a[1]).total_cmp(&b[0].hypot(b[1])));
+        let [i, j] = *views.get(self.far_dark - 1)?;
+        let offset = [
+            -i * FAR_SEARCH_OVERLAP * size[0],
+            -j * FAR_SEARCH_OVERLAP * size[1],
+        ];
+        let tilt = Affine {
+            offset: [0.0; 2],
+            gain,
+        }
+        .solve(offset)?;
+        Some([self.far_start[0] + tilt[0], self.far_start[1] + tilt[1]])
     }
 
     fn next_mirror(&mut self) {
@@ -500,7 +624,10 @@ impl RelayAgent {
                 self.lash[m].moved(command);
                 self.tilted = m == self.mirror;
             }
-            Some(RelayAction::Measure { station }) => self.station = station.index(),
+            Some(RelayAction::Measure { station }) => {
+                self.placed |= station.index() != self.station;
+                self.station = station.index();
+            }
             _ => {}
         }
     }

@@ -72,6 +72,11 @@ pub fn describe_bench(geometry: &BenchGeometry) -> String {
             "Each camera station's distance from the mirror that starts its segment: {list}."
         ));
     }
+    if let Some(spread) = geometry.placement_repeatability_mm {
+        lines.push(format!(
+            "Each time the camera is moved to a station it lands within about {spread:.2} mm (one standard deviation) of the same place, so a beam's position in the image shifts by that much from one visit to the next."
+        ));
+    }
     match (geometry.image_px, geometry.sensor_mm) {
         (Some([w, h]), Some([sw, sh])) => lines.push(format!(
             "The camera takes {w} x {h} pixel images of a {sw:.2} mm x {sh:.2} mm sensor ({:.1} micrometres per pixel).",
@@ -220,6 +225,7 @@ mod tests {
             relay_sides_mm: Some([300.0, 200.0]),
             mirror_diameter_mm: Some(12.7),
             station_distances_mm: Some([20.0, 280.0, 20.0, 180.0, 20.0, 280.0, 20.0, 400.0]),
+            placement_repeatability_mm: Some(0.25),
         };
         let relay = system_prompt(
             &TaskBrief::new(TaskKind::Relay, &limits, geometry.clone()),
@@ -234,6 +240,7 @@ mod tests {
             "1280 x 720 pixel",
             "4.5 micrometres per pixel",
             "3.30e-6 rad",
+            "within about 0.25 mm",
         ] {
             assert!(relay.contains(expected), "missing {expected:?}");
         }
