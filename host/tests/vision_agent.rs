@@ -96,10 +96,6 @@ fn cavity_artefacts_cancel_and_the_secondary_shows_in_the_difference() {
     );
 }
 
-async fn run(task: TaskKind, seed: u64) -> optalign::run::RunSummary {
-    run_into(task, seed, None).await
-}
-
 /// One run of the vision agent on the default scenario, through the bench's own runner.
 async fn run_into(
     task: TaskKind,
@@ -184,12 +180,28 @@ async fn the_vision_agent_aligns_the_relay() {
     // Seeds 0 and 3 start with the beam at C3 as a large speckle cloud cut by the sensor's
     // edge, whose centroid misleads the first response fit; 9 is an ordinary start.
     for seed in [0, 3, 9] {
-        let summary = run(TaskKind::Relay, seed).await;
+        let dir = tempfile::tempdir().unwrap();
+        let summary = run_into(TaskKind::Relay, seed, Some(dir.path().to_path_buf())).await;
         assert!(
             summary.success && summary.declared_done,
             "seed {seed}: {summary:?}"
         );
+        // The default mounts' backlash is compensated by the controller: no lost motion is
+        // learned where there is none.
+        let band = largest_lost_motion(&transcript_steps(dir.path()));
+        assert!(band < 50.0, "seed {seed}: {band} steps of lost motion");
     }
+}
+
+/// The widest dead band the relay agent claims to have learned on any axis, steps.
+fn largest_lost_motion(steps: &[serde_json::Value]) -> f64 {
+    let last = &steps.last().unwrap()["claims"]["lost_motion_steps"];
+    last.as_array()
+        .unwrap()
+        .iter()
+        .flat_map(|mirror| mirror.as_array().unwrap().iter())
+        .map(|band| band.as_f64().unwrap())
+        .fold(0.0, f64::max)
 }
 
 #[tokio::test]
@@ -263,11 +275,21 @@ async fn the_vision_agent_aligns_mounts_with_300_steps_of_uncompensated_backlash
         (TaskKind::Cavity, 3),
         (TaskKind::Relay, 0),
     ] {
-        let summary = run_on(task, seed, scenario.clone(), None).await;
+        let dir = tempfile::tempdir().unwrap();
+        let summary = run_on(task, seed, scenario.clone(), Some(dir.path().to_path_buf())).await;
         assert!(
             summary.success && summary.declared_done,
             "{task} seed {seed}: {summary:?}"
         );
+        if task == TaskKind::Relay {
+            // 300 steps of backlash less the controller's 30 of compensation: what the agent
+            // learned is of that size, not more.
+            let band = largest_lost_motion(&transcript_steps(dir.path()));
+            assert!(
+                (150.0..=350.0).contains(&band),
+                "{band} steps of lost motion"
+            );
+        }
     }
 }
 

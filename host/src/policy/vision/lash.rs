@@ -38,7 +38,6 @@ impl Lash {
     }
 
     /// The dead band learned so far, steps per axis.
-    #[cfg(test)]
     pub fn band(&self) -> Vec2 {
         self.band
     }

@@ -70,10 +70,10 @@ impl Policy for VisionPolicy {
                 let claims = agent.claims(action.is_done());
                 (action, Some(claims))
             }
-            Agent::Relay(agent) => (
-                Action::Relay(agent.decide(image, rejected, remaining)),
-                None,
-            ),
+            Agent::Relay(agent) => {
+                let action = Action::Relay(agent.decide(image, rejected, remaining));
+                (action, Some(agent.claims()))
+            }
         };
         Ok(Decision {
             claims,

@@ -132,6 +132,8 @@ pub struct RelayAgent {
     /// Radius of a whole spot, px, once seen.
     radius: Option<f64>,
     last: Option<RelayAction>,
+    /// The spot in the last frame, px.
+    seen_at: Option<Vec2>,
 }
 
 impl RelayAgent {
@@ -172,6 +174,7 @@ impl RelayAgent {
             stray: Vec::new(),
             radius: None,
             last: None,
+            seen_at: None,
         };
         agent.near = agent.new_near_servo();
         agent.search = agent.new_search();
@@ -228,6 +231,7 @@ impl RelayAgent {
         }
         let view = View::new(frame);
         let spot = self.find_spot(&view);
+        self.seen_at = spot.map(|s| s.centre);
         self.previous = Some((view, self.station, self.cumulative));
         if self.tilted {
             let [w, h] = self.previous.as_ref().expect("just set").0.size();
@@ -332,6 +336,29 @@ impl RelayAgent {
         {
             self.lash[self.mirror].learn(from, moved);
         }
+    }
+
+    /// What the agent believes after its last decision, for the transcript: the mirror
+    /// and the stage it works on, where it saw the spot in the last frame (and at which
+    /// station), the response it steers by there, each mirror's lost motion, and C8's
+    /// placements.
+    pub fn claims(&self) -> serde_json::Value {
+        let (stage, servo) = match self.phase {
+            Phase::Near => ("near station", &self.near),
+            Phase::Far => ("far station", &self.far),
+        };
+        serde_json::json!({
+            "phase": format!("M{} at its {stage}", self.mirror + 1),
+            "imaged_at": format!("C{}", self.station + 1),
+            "spot_px": self.seen_at,
+            "response_px_per_step": servo.gain(),
+            "lost_motion_steps": self.lash.map(|lash| lash.band()),
+            "c8_placements": {
+                "made": self.placements.len(),
+                "needed": self.placements_needed(),
+                "average_px": self.placements_average(self.tilt_of(3)),
+            },
+        })
     }
 
     /// The task's centring tolerance, px.
@@ -518,6 +545,9 @@ impl RelayAgent {
     /// Where the spot shows at load `u` on average over C8's placements (each carried to
     /// `u` by C8's response), when the response is known.
     fn placements_average(&self, u: Vec2) -> Option<Vec2> {
+        if self.placements.is_empty() {
+            return None;
+        }
         let gain = self.far.gain()?;
         let n = self.placements.len() as f64;
         let mut sum = [0.0; 2];
