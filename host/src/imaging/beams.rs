@@ -101,6 +101,19 @@ impl Beam {
     pub fn size(&self) -> f64 {
         (self.radii[0] * self.radii[1]).sqrt()
     }
+
+    /// The same beam moved by `by`, px.
+    pub fn translated(&self, by: [f64; 2]) -> Beam {
+        let moved = |p: [f64; 2]| [p[0] + by[0], p[1] + by[1]];
+        Beam {
+            centre: moved(self.centre),
+            fit: self.fit.map(|f| GaussianFit {
+                centre: moved(f.centre),
+                ..f
+            }),
+            ..*self
+        }
+    }
 }
 
 /// Beams in `picture`, strongest first.

@@ -2,7 +2,10 @@
 //! laser's power drift between the frames taken out first (the gain that best maps the
 //! earlier picture's steady light onto the later one), saturated pixels ignored (they show
 //! nothing), then searched for beams both ways. Everything that did not move cancels; a
-//! moved beam shows where it appeared and where it vanished.
+//! moved beam shows where it appeared and where it vanished. When the whole stationary
+//! scene shifted between the frames (pointing jitter of a beam that carries its artefacts
+//! with it), [`registered_changes`] moves the earlier picture by that shift first, so the
+//! scene's edges cancel too instead of leaving residue as bright as a faint beam.
 
 use super::beams::{Beam, find_beams};
 use super::picture::Picture;
@@ -29,32 +32,101 @@ pub struct Changes {
 
 /// The changes from `before` to `after`; empty when the sizes differ.
 pub fn changes(before: &Picture, after: &Picture) -> Changes {
+    registered_changes(before, after, [0.0, 0.0])
+}
+
+/// The changes from `before` to `after` when the stationary scene moved by `shift`, px
+/// (x right, y down), between them: `before` is resampled onto `after`'s scene first.
+/// Where light appeared is in `after`'s coordinates, where it vanished in `before`'s.
+/// Empty when the sizes differ.
+pub fn registered_changes(before: &Picture, after: &Picture, shift: [f64; 2]) -> Changes {
     if before.width() != after.width() || before.height() != after.height() {
         return Changes::default();
     }
-    let gain = steady_gain(before, after);
+    let (w, h) = (after.width(), after.height());
+    let earlier = Shifted::new(before, shift);
+    let gain = steady_gain(&earlier, before.noise(), after);
     let g = gain as f32;
-    let (b, a) = (before.light(), after.light());
-    let (bs, as_) = (before.saturated(), after.saturated());
+    let a = after.light();
+    let as_ = after.saturated();
     let difference: Vec<f32> = (0..a.len())
         .map(|i| {
-            if bs[i] || as_[i] {
+            if earlier.unknown[i] || as_[i] {
                 0.0
             } else {
-                a[i] - g * b[i]
+                a[i] - g * earlier.light[i]
             }
         })
         .collect();
     let noise = after.noise().hypot(gain * before.noise());
-    let (w, h) = (after.width(), after.height());
     let side = |sign: f32| {
         let light = one_side(&difference, w, h, sign, noise);
         find_beams(&Picture::from_light(w, h, light, noise))
     };
+    let back = [-shift[0], -shift[1]];
     Changes {
         appeared: side(1.0),
-        vanished: side(-1.0),
+        vanished: side(-1.0).iter().map(|b| b.translated(back)).collect(),
         gain,
+    }
+}
+
+/// A picture's light resampled at a shift (bilinear), with the pixels that carry no
+/// shape: saturated at a source pixel, or brought in from beyond the border.
+struct Shifted {
+    light: Vec<f32>,
+    unknown: Vec<bool>,
+}
+
+impl Shifted {
+    /// `picture` as it shows when its scene moves by `shift`, px.
+    fn new(picture: &Picture, shift: [f64; 2]) -> Self {
+        let (w, h) = (picture.width(), picture.height());
+        if shift == [0.0, 0.0] {
+            return Self {
+                light: picture.light().to_vec(),
+                unknown: picture.saturated().to_vec(),
+            };
+        }
+        // Pixel x of the shifted picture reads source pixels `x - whole` and the one before,
+        // the latter with weight `part`.
+        let split = |s: f64| {
+            let whole = s.floor();
+            (whole as isize, (s - whole) as f32)
+        };
+        let (wx, px) = split(shift[0]);
+        let (wy, py) = split(shift[1]);
+        let light = picture.light();
+        let saturated = picture.saturated();
+        let mut out = Self {
+            light: vec![0.0; w * h],
+            unknown: vec![true; w * h],
+        };
+        let taps = |whole: isize, part: f32| [(whole, 1.0 - part), (whole + 1, part)];
+        for y in 0..h {
+            for x in 0..w {
+                let (mut sum, mut unknown) = (0f32, false);
+                for (dy, fy) in taps(wy, py) {
+                    for (dx, fx) in taps(wx, px) {
+                        let weight = fx * fy;
+                        if weight == 0.0 {
+                            continue;
+                        }
+                        let (sx, sy) = (x as isize - dx, y as isize - dy);
+                        if !(0..w as isize).contains(&sx) || !(0..h as isize).contains(&sy) {
+                            unknown = true;
+                            continue;
+                        }
+                        let i = sy as usize * w + sx as usize;
+                        unknown |= saturated[i];
+                        sum += weight * light[i];
+                    }
+                }
+                out.light[y * w + x] = sum;
+                out.unknown[y * w + x] = unknown;
+            }
+        }
+        out
     }
 }
 
@@ -105,16 +177,16 @@ fn one_side(difference: &[f32], w: usize, h: usize, sign: f32, noise: f64) -> Ve
     out
 }
 
-/// The median ratio of `after` to `before` over pixels bright and unsaturated in both; 1
-/// when too few pixels are.
-fn steady_gain(before: &Picture, after: &Picture) -> f64 {
-    let floor_b = GAIN_NOISES * before.noise() as f32;
+/// The median ratio of `after` to `before` (read noise `before_noise`) over pixels bright
+/// and unsaturated in both; 1 when too few pixels are.
+fn steady_gain(before: &Shifted, before_noise: f64, after: &Picture) -> f64 {
+    let floor_b = GAIN_NOISES * before_noise as f32;
     let floor_a = GAIN_NOISES * after.noise() as f32;
-    let (b, a) = (before.light(), after.light());
+    let (b, a) = (&before.light, after.light());
     let mut ratios: Vec<f32> = (0..a.len())
         .step_by(GAIN_STRIDE)
         .filter(|&i| {
-            b[i] > floor_b && a[i] > floor_a && !before.is_saturated(i) && !after.is_saturated(i)
+            b[i] > floor_b && a[i] > floor_a && !before.unknown[i] && !after.is_saturated(i)
         })
         .map(|i| a[i] / b[i])
         .collect();

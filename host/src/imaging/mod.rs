@@ -1,22 +1,26 @@
 //! Image analysis shared by calibration, bench scoring and the image-only agent: a frame's
 //! light above its background ([`Picture`]), the beams in it ([`find_beams`]), the centre of
-//! a beam's bright core ([`core_centre`]), and what changed between two frames ([`changes`]).
+//! a beam's bright core ([`core_centre`]), and what changed between two frames ([`changes`],
+//! [`registered_changes`] when the stationary scene shifted, by as much as a bright beam's
+//! core moved: [`scene_shift`]).
 
 mod beams;
 mod changes;
 mod core;
 mod gaussian;
 mod picture;
+mod register;
 #[cfg(test)]
 pub(crate) mod synthetic;
 #[cfg(test)]
 mod tests;
 
 pub use beams::{Beam, find_beams};
-pub use changes::{Changes, changes};
+pub use changes::{Changes, changes, registered_changes};
 pub use core::core_centre;
 pub use gaussian::GaussianFit;
 pub use picture::Picture;
+pub use register::scene_shift;
 
 /// The beam nearest to `point`.
 pub fn nearest(beams: &[Beam], point: [f64; 2]) -> Option<&Beam> {

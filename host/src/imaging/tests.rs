@@ -3,7 +3,7 @@
 //! stray light, a sloping background, a smear column and hot pixels around them.
 
 use super::synthetic::Scene;
-use super::{Beam, Picture, changes, find_beams};
+use super::{Beam, Picture, changes, find_beams, registered_changes, scene_shift};
 
 const W: usize = 640;
 const H: usize = 480;
@@ -321,4 +321,48 @@ fn a_background_sloping_below_black_is_not_taken_for_light() {
         let (beam, d) = found(&scene, truth);
         assert!(d < 1.0 && !beam.clipped, "{d} {beam:?}");
     }
+}
+
+/// A cavity-like frame: a saturated primary with a thin ring and a broad halo around
+/// `primary`, and a faint spot at `faint`.
+fn jittered_bench(primary: [f64; 2], faint: [f64; 2], seed: u64) -> Scene {
+    bench(seed)
+        .gaussian(primary, 35.0, 1200.0)
+        .gaussian(primary, 130.0, 14.0)
+        .add(primary, |dx, dy| {
+            let d = ((dx * dx + dy * dy).sqrt() - 85.0) / 3.0;
+            18.0 * (-d * d).exp()
+        })
+        .gaussian(faint, 18.0, 40.0)
+}
+
+#[test]
+fn a_scene_that_jittered_is_registered_and_only_the_faint_spot_that_moved_shows() {
+    let primary = [300.0, 240.0];
+    let (from, to) = ([480.0, 120.0], [520.0, 170.0]);
+    let before = Picture::new(&jittered_bench(primary, from, 31).frame());
+    // The primary and its rings moved 3 px right and 2 px up with pointing jitter.
+    let after = Picture::new(&jittered_bench([303.0, 238.0], to, 32).frame());
+    let primary_beam = *super::nearest(&find_beams(&before), primary).unwrap();
+    let shift = scene_shift(&before, &after, &primary_beam, 0.5);
+    assert_eq!(shift, [3.0, -2.0]);
+    // Unregistered, the primary's edges and rings leave residue as bright as the spot.
+    let plain = changes(&before, &after);
+    assert!(plain.appeared.len() + plain.vanished.len() > 2, "{plain:?}");
+    let moved = registered_changes(&before, &after, shift);
+    assert_eq!(moved.appeared.len(), 1, "{:?}", moved.appeared);
+    assert_eq!(moved.vanished.len(), 1, "{:?}", moved.vanished);
+    let miss = |b: &Beam, p: [f64; 2]| (b.centre[0] - p[0]).hypot(b.centre[1] - p[1]);
+    assert!(miss(&moved.appeared[0], to) < 1.5, "{:?}", moved.appeared);
+    // Where it vanished is in the earlier picture's own coordinates.
+    assert!(miss(&moved.vanished[0], from) < 1.5, "{:?}", moved.vanished);
+}
+
+#[test]
+fn a_faint_spot_moving_on_the_core_edge_is_not_taken_for_a_move_of_the_scene() {
+    let primary = [300.0, 240.0];
+    let before = Picture::new(&jittered_bench(primary, [335.0, 230.0], 33).frame());
+    let after = Picture::new(&jittered_bench(primary, [320.0, 270.0], 34).frame());
+    let primary_beam = *super::nearest(&find_beams(&before), primary).unwrap();
+    assert_eq!(scene_shift(&before, &after, &primary_beam, 0.5), [0.0, 0.0]);
 }

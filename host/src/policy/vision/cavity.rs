@@ -1,7 +1,9 @@
 //! The cavity agent: the bright primary stays put and its intensity centroid marks the
 //! target; the dim secondary is found in the difference between successive frames (it is
 //! the only thing that moves with the in-coupler; rings, halo, ghosts and stray light
-//! cancel, and the laser's power drift is taken out first). Nothing about the bench is
+//! cancel, and the laser's power drift is taken out first; when the primary jittered, it
+//! carried its rings, halo and ghosts along, so the earlier frame is first moved by as
+//! much as the primary's core moved). Nothing about the bench is
 //! assumed beyond the command ranges: the first probe is a cautious share of the range,
 //! later ones are sized from the measured response to move the secondary a useful number
 //! of its own radii; while it has not been seen, a search widens in big steps across the
@@ -12,9 +14,9 @@
 use optalign_optics::Frame;
 
 use super::model::{SAME_STEP, Sighting, Tracker, Vec2, distance};
-use super::see::{Seen, View, alike, motion, stationary_pairs};
+use super::see::{Seen, View, alike, registered_motion, stationary_pairs};
 use super::sight::{Scales, sight};
-use crate::imaging::core_centre;
+use crate::imaging::{core_centre, nearest, scene_shift};
 use crate::task::{Action, CavityLimits};
 
 /// The secondary is feature 0 of the learned scales, the primary feature 1.
@@ -233,7 +235,13 @@ impl CavityAgent {
         let pairs = stationary_pairs(&before.beams, &view.beams, self.scales.steady());
         self.scales.learn_steady(&pairs, &before.beams, &view.beams);
         let expected = self.tracker.predict(self.command);
-        let moved = motion(&before, view, self.scales.steady(), expected, None);
+        // The primary carries its rings, halo and ghosts: where it jittered, they went too.
+        let shift = nearest(&before.beams, target)
+            .filter(|b| distance(b.centre, target) < primary_radius)
+            .map_or([0.0, 0.0], |b| {
+                scene_shift(&before.picture, &view.picture, b, PRIMARY_CORE_SHARE)
+            });
+        let moved = registered_motion(&before, view, shift, self.scales.steady(), expected, None);
         let radius = self.scales.radius(SECONDARY);
         let hidden = HIDDEN_RADII * primary_radius;
         // The secondary shows outside the primary's footprint, and where it went near

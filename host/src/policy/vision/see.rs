@@ -8,7 +8,7 @@
 use optalign_optics::Frame;
 
 use super::model::{Vec2, distance};
-use crate::imaging::{Beam, Picture, changes, find_beams};
+use crate::imaging::{Beam, Picture, find_beams, registered_changes};
 
 /// One frame, measured.
 pub struct View {
@@ -146,7 +146,21 @@ pub fn motion(
     expected: Option<Vec2>,
     avoid: Option<(Vec2, Vec2)>,
 ) -> Motion {
-    let moved = changes(&before.picture, &after.picture);
+    registered_motion(before, after, [0.0, 0.0], steady, expected, avoid)
+}
+
+/// [`motion`] when the stationary scene moved by `shift`, px, between the views (its
+/// jitter, measured on a stationary feature): the difference is taken on `before` moved
+/// by as much, so the scene cancels also where it has sharp edges.
+pub fn registered_motion(
+    before: &View,
+    after: &View,
+    shift: Vec2,
+    steady: f64,
+    expected: Option<Vec2>,
+    avoid: Option<(Vec2, Vec2)>,
+) -> Motion {
+    let moved = registered_changes(&before.picture, &after.picture, shift);
     let pairs = stationary_pairs(&before.beams, &after.beams, steady);
     // A change inside a feature that stayed, with a small share of its light, is that
     // feature's jitter or texture shifting, not a beam that moved.

@@ -1,0 +1,110 @@
+//! How far the stationary scene around a bright beam moved between two pictures (pointing
+//! jitter of a beam that carries its rings, halo and ghosts with it): the move of the
+//! beam's core centre in whole pixels, kept only when it makes the two pictures agree
+//! better around the beam than no move at all. A faint spot moving on the core's edge
+//! pulls that centre by a fraction of a pixel (and the comparison, which also improves by
+//! following the spot, cannot tell that from a move of the scene): taken for a move of the
+//! scene, it would leave residue where there was none, so a move under half a pixel counts
+//! as none.
+
+use super::core::core_centre;
+use super::{Beam, Picture};
+
+/// The window compared spans this many beam radii either side of the core centre.
+const WINDOW_RADII: f64 = 1.5;
+
+/// Every this-many-th pixel of the window (per axis) is compared.
+const STRIDE: usize = 2;
+
+/// How far the scene around `beam` of `before` (its core: the light above `share` of its
+/// peak) moved in `after`, whole px (x right, y down); zero when it did not move or its
+/// core was not found in both.
+pub fn scene_shift(before: &Picture, after: &Picture, beam: &Beam, share: f64) -> [f64; 2] {
+    let still = [0.0, 0.0];
+    let Some(from) = core_centre(before, beam, share) else {
+        return still;
+    };
+    let moved_beam = Beam {
+        centre: from,
+        ..*beam
+    };
+    let Some(to) = core_centre(after, &moved_beam, share) else {
+        return still;
+    };
+    let shift = [(to[0] - from[0]).round(), (to[1] - from[1]).round()];
+    if shift == still {
+        return still;
+    }
+    let window = WINDOW_RADII * beam.size().max(1.0);
+    match misfits(before, after, from, window, [shift, still]) {
+        Some([moved, stayed]) if moved < stayed => shift,
+        _ => still,
+    }
+}
+
+/// For each of the `shifts`, what is left of `after` around `centre` (within `half` px per
+/// axis) once `before`, moved by the shift and scaled by the gain that fits best (the
+/// laser's power drift), is taken away: the sums of squares over the pixels unsaturated in
+/// both pictures for every shift; `None` when there are none.
+fn misfits(
+    before: &Picture,
+    after: &Picture,
+    centre: [f64; 2],
+    half: f64,
+    shifts: [[f64; 2]; 2],
+) -> Option<[f64; 2]> {
+    let (w, h) = (after.width(), after.height());
+    let span = |c: f64, side: usize| {
+        let lo = (c - half).floor().max(0.0) as usize;
+        let hi = ((c + half).ceil().max(0.0) as usize).min(side);
+        (lo..hi).step_by(STRIDE)
+    };
+    let light = after.light();
+    let mut sums = [[0.0f64; 3]; 2];
+    for y in span(centre[1], h) {
+        for x in span(centre[0], w) {
+            let i = y * w + x;
+            if after.is_saturated(i) {
+                continue;
+            }
+            let point = |s: [f64; 2]| [x as f64 + 0.5 - s[0], y as f64 + 0.5 - s[1]];
+            let (Some(b0), Some(b1)) = (
+                sample(before, point(shifts[0])),
+                sample(before, point(shifts[1])),
+            ) else {
+                continue;
+            };
+            let a = f64::from(light[i]);
+            for (sum, b) in sums.iter_mut().zip([b0, b1]) {
+                sum[0] += a * a;
+                sum[1] += a * b;
+                sum[2] += b * b;
+            }
+        }
+    }
+    let left = |[aa, ab, bb]: [f64; 3]| (bb > 0.0).then(|| aa - ab * ab / bb);
+    Some([left(sums[0])?, left(sums[1])?])
+}
+
+/// The light at a point (pixel centres at `i + 0.5`), bilinear; `None` outside the picture
+/// or next to a saturated pixel.
+fn sample(picture: &Picture, point: [f64; 2]) -> Option<f64> {
+    let (w, h) = (picture.width(), picture.height());
+    let (x, y) = (point[0] - 0.5, point[1] - 0.5);
+    if x < 0.0 || y < 0.0 || x >= (w - 1) as f64 || y >= (h - 1) as f64 {
+        return None;
+    }
+    let (x0, y0) = (x.floor() as usize, y.floor() as usize);
+    let (fx, fy) = (x - x0 as f64, y - y0 as f64);
+    let corners = [(x0, y0), (x0 + 1, y0), (x0, y0 + 1), (x0 + 1, y0 + 1)];
+    if corners
+        .iter()
+        .any(|&(cx, cy)| picture.is_saturated(cy * w + cx))
+    {
+        return None;
+    }
+    let at = |(cx, cy): (usize, usize)| f64::from(picture.light()[cy * w + cx]);
+    let top = at(corners[0]) * (1.0 - fx) + at(corners[1]) * fx;
+    let bottom = at(corners[2]) * (1.0 - fx) + at(corners[3]) * fx;
+    Some(top * (1.0 - fy) + bottom * fy)
+}
