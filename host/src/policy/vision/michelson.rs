@@ -18,6 +18,22 @@ use super::see::{Motion, Seen, View, motion, stationary_pairs};
 use super::sight::{Scales, sight};
 use crate::task::{Action, MichelsonLimits};
 
+/// A search grid's points are this share of the image apart in view (a little overlap, so
+/// a beam between points shows at least in part).
+const GRID_VIEW_SHARE: f64 = 0.9;
+
+/// The spacing per command axis of a search grid for a mount of response `gain` (px per
+/// step; rows image x and y) on an image of `size`: a move of one spacing along an axis
+/// shifts the view by [`GRID_VIEW_SHARE`] of the image along the image axis it moves the
+/// beam most in proportion, so the grid's views tile the command space.
+fn search_grid(gain: [[f64; 2]; 2], size: Vec2) -> Vec2 {
+    [0, 1].map(|axis| {
+        (0..2)
+            .map(|row| GRID_VIEW_SHARE * size[row] / gain[row][axis].abs().max(1e-9))
+            .fold(f64::INFINITY, f64::min)
+    })
+}
+
 /// The first probe moves an axis by this share of its command range.
 const CAUTIOUS_SHARE: f64 = 1.0 / 32.0;
 
@@ -336,8 +352,13 @@ impl MichelsonAgent {
             [Some(Sighting::Clean(_) | Sighting::Fitted(_)), None] => scaled(1.0 / PROBE_GROWTH),
             [_, Some(Sighting::Partial(_))] => [SEARCH_SHARE * span; 2].map(|p| p.max(probe[0])),
             [None, None] if motion.from.is_none() && !self.trackers[k].clean.is_empty() => {
-                // Seen before, no change now: it hardly moved.
-                scaled(PROBE_GROWTH)
+                if self.still_in_view(k, after) {
+                    // Seen before and still there, no change now: it hardly moved.
+                    scaled(PROBE_GROWTH)
+                } else {
+                    // Out of view before and after the move: it says nothing of the response.
+                    probe
+                }
             }
             [None, None] if self.trackers[k].clean.is_empty() => {
                 // Never seen whole: search in big steps, wider each time; once the other
@@ -346,6 +367,9 @@ impl MichelsonAgent {
                 let search = match self.trackers[1 - k].model() {
                     Some(other) => {
                         let side = after.size()[0].min(after.size()[1]);
+                        let grid = search_grid(other.gain, after.size())
+                            .map(|g| g.clamp(2.0 * lo, 2.0 * span));
+                        self.trackers[k].search_grid = Some(grid);
                         SEARCH_GRID_SHARE * side / column_norm(other.gain).max(1e-9)
                     }
                     None => (SEARCH_SHARE * span).max(probe[0] * PROBE_GROWTH.sqrt()),
@@ -355,6 +379,23 @@ impl MichelsonAgent {
             _ => probe,
         };
         self.trackers[k].set_probe(length);
+    }
+
+    /// Whether `view` shows a beam where beam `k` was last seen (within the match radius).
+    fn still_in_view(&self, k: usize, view: &View) -> bool {
+        let tracker = &self.trackers[k];
+        let Some(last) = tracker
+            .clean
+            .iter()
+            .chain(&tracker.partial)
+            .max_by_key(|s| s.order)
+        else {
+            return false;
+        };
+        let reach = MATCH_RADII * self.scales.radius(k);
+        view.beams
+            .iter()
+            .any(|b| distance(b.centre, last.image) < reach)
     }
 
     /// How far a probe should move beam `k` on an image of `size`, px.

@@ -297,6 +297,9 @@ pub struct Tracker {
     pub noise: f64,
     /// Sightings made so far (clean and partial), for their order.
     made: usize,
+    /// The spacing per axis of a square search grid whose points' views tile the
+    /// command space, when the response's scale is known (from a like mount), steps.
+    pub search_grid: Option<Vec2>,
     /// The last command where the feature did not show, and how many sightings had been
     /// made by then.
     lost_at: Option<(Vec2, usize)>,
@@ -319,6 +322,7 @@ impl Tracker {
             noise: 1.0,
             made: 0,
             lost_at: None,
+            search_grid: None,
         }
     }
 
@@ -806,6 +810,8 @@ impl Tracker {
                 around.sort_by_key(|c| usize::from(c[1 - axis] != base[1 - axis]));
             }
             around
+        } else if let Some(grid) = self.search_grid {
+            square_rings(start, grid, 1..=SEARCH_RINGS)
         } else {
             rings(start, [2.0 * px, 2.0 * py], 1..=6)
         };
