@@ -16,6 +16,7 @@ use optalign_optics::Frame;
 use super::model::{SAME_STEP, Sighting, Tracker, Vec2, column_norm, distance};
 use super::see::{Motion, Seen, View, motion, stationary_pairs};
 use super::sight::{Scales, sight};
+use crate::imaging::Beam;
 use crate::task::{Action, MichelsonLimits};
 
 /// A search grid's points are this share of the image apart in view (a little overlap, so
@@ -115,6 +116,12 @@ enum Step {
     /// Mirror `k` alone moved where its map puts its beam clear of the other, after a check
     /// did not find it.
     Relocate { k: usize },
+    /// Both mirrors moved to their next points of a blind search, neither beam seen yet:
+    /// one image searches two grids.
+    Search { k: usize },
+    /// After a search showed a beam, mirror `k` alone moved a short way: the beam moves if
+    /// it is beam `k`, else it is the other mirror's (seen as `appeared`).
+    Attribute { k: usize, appeared: Beam },
 }
 
 /// The Michelson state machine.
@@ -128,6 +135,8 @@ pub struct MichelsonAgent {
     checks: usize,
     /// The larger miss of the two beams at the last check, px.
     last_miss: Option<f64>,
+    /// Where the last check found each beam, and for which command of its mirror.
+    last_found: [Option<(Vec2, Vec2)>; 2],
     /// A beam the last check did not find where its map put it.
     missed: Option<usize>,
     /// Mirrors whose map was refuted: a check and then a relocation did not find the beam
@@ -137,6 +146,8 @@ pub struct MichelsonAgent {
     scales: Scales,
     /// Command span per axis, steps.
     spans: [f64; 4],
+    /// A beam the last search showed, not yet told whose.
+    appeared: Option<Beam>,
 }
 
 impl MichelsonAgent {
@@ -161,10 +172,12 @@ impl MichelsonAgent {
             last: Step::Start,
             checks: 0,
             last_miss: None,
+            last_found: [None; 2],
             missed: None,
             refuted: [false; 2],
             scales: Scales::default(),
             spans,
+            appeared: None,
         }
     }
 
@@ -187,9 +200,20 @@ impl MichelsonAgent {
         if remaining <= 1 {
             return self.finish(centre);
         }
-        if let Some(k) = (0..2).find(|&k| self.trackers[k].model().is_none() || self.refuted[k]) {
+        let unmapped = |k: &usize| self.trackers[*k].model().is_none() || self.refuted[*k];
+        let sighted = |k: &usize| {
+            !self.trackers[*k].clean.is_empty() || !self.trackers[*k].partial.is_empty()
+        };
+        let next = (0..2)
+            .filter(unmapped)
+            .find(sighted)
+            .or_else(|| (0..2).find(unmapped));
+        if let Some(k) = next {
             if remaining <= 3 {
                 return self.finish(centre);
+            }
+            if let Some(appeared) = self.appeared.take() {
+                return self.attribute(k, appeared);
             }
             self.scale_probe(k, size);
             let prefer = self.trackers[k]
@@ -198,6 +222,9 @@ impl MichelsonAgent {
                 .and_then(|s| self.border_axis(k, s.image, centre));
             let margin = IN_VIEW_RADII * self.scales.radius(k);
             let u = self.trackers[k].next_probe_towards([0.0, 0.0], size, margin, prefer);
+            if self.blind(k) && self.blind(1 - k) && !self.trackers[k].is_fresh() {
+                return self.search(k, u);
+            }
             return self.probe(k, u, centre);
         }
         if confirmed || remaining <= 2 {
@@ -222,6 +249,8 @@ impl MichelsonAgent {
             }
             (_, Step::Check { .. }) => "check both beams apart near the centre".to_string(),
             (_, Step::Relocate { k }) => format!("find beam {} clear of the other", k + 1),
+            (_, Step::Search { .. }) => "search both mirrors".to_string(),
+            (_, Step::Attribute { k, .. }) => format!("tell whether the beam seen is {}", k + 1),
         };
         let mirrors: Vec<_> = (0..2)
             .map(|k| self.trackers[k].claims(self.mirror(k)))
@@ -251,6 +280,14 @@ impl MichelsonAgent {
                 false
             }
             Step::Check { predicted } => self.observe_check(&before, view, predicted),
+            Step::Search { k } => {
+                self.observe_search(&before, view, k);
+                false
+            }
+            Step::Attribute { k, appeared } => {
+                self.observe_attribute(&before, view, k, &appeared);
+                false
+            }
         }
     }
 
@@ -352,12 +389,14 @@ impl MichelsonAgent {
             [Some(Sighting::Clean(_) | Sighting::Fitted(_)), None] => scaled(1.0 / PROBE_GROWTH),
             [_, Some(Sighting::Partial(_))] => [SEARCH_SHARE * span; 2].map(|p| p.max(probe[0])),
             [None, None] if motion.from.is_none() && !self.trackers[k].clean.is_empty() => {
-                if self.still_in_view(k, after) {
-                    // Seen before and still there, no change now: it hardly moved.
-                    scaled(PROBE_GROWTH)
-                } else {
-                    // Out of view before and after the move: it says nothing of the response.
+                if self.trackers[k].model().is_none() && !self.still_in_view(k, after) {
+                    // Not yet mapped, and out of view before and after the move: it says
+                    // nothing of the response, and a longer probe only strays farther
+                    // from where the beam was seen.
                     probe
+                } else {
+                    // Seen before, no change now: it hardly moved.
+                    scaled(PROBE_GROWTH)
                 }
             }
             [None, None] if self.trackers[k].clean.is_empty() => {
@@ -423,7 +462,11 @@ impl MichelsonAgent {
         {
             return false;
         }
-        self.missed = found.iter().position(Option::is_none);
+        self.missed = found
+            .iter()
+            .position(Option::is_none)
+            .or_else(|| (0..2).find(|&k| self.stuck(k, found[k], predicted[k])));
+        self.last_found = [0, 1].map(|k| found[k].map(|c| (self.mirror(k), c)));
         let within = found
             .iter()
             .zip(predicted)
@@ -453,6 +496,19 @@ impl MichelsonAgent {
         }
         // A new estimate of the lost motion changes every prediction: it is checked first.
         confirmed && !relearned
+    }
+
+    /// Whether beam `k`, found at `seen` off its prediction, sat there at the last check for
+    /// the same command too: checks that neither move its mirror nor correct its map repeat
+    /// the miss, so the mirror is moved alone (a relocation) to give its map new sightings.
+    fn stuck(&self, k: usize, seen: Option<Vec2>, predicted: Vec2) -> bool {
+        let (Some(seen), Some((command, then))) = (seen, self.last_found[k]) else {
+            return false;
+        };
+        let confirm = self.confirm_px(k);
+        distance(command, self.mirror(k)) < SAME_STEP
+            && distance(seen, then) < confirm
+            && distance(seen, predicted) > confirm
     }
 
     /// How close a checked beam must land to its prediction to confirm the map, px.
@@ -520,6 +576,81 @@ impl MichelsonAgent {
         }
         self.last = Step::Probe { k, parked };
         self.action(false)
+    }
+
+    /// Whether mirror `k`'s beam was never seen and its map is unknown.
+    fn blind(&self, k: usize) -> bool {
+        let tracker = &self.trackers[k];
+        tracker.clean.is_empty() && tracker.partial.is_empty() && tracker.model().is_none()
+    }
+
+    /// Moves mirror `k` to `u` and the other mirror to the next point of its own search,
+    /// at the same probe length.
+    fn search(&mut self, k: usize, u: Vec2) -> Action {
+        self.before = [self.mirror(0), self.mirror(1)];
+        let j = 1 - k;
+        let probe = self.trackers[k].probe;
+        self.trackers[j].set_probe(probe);
+        if self.trackers[j].search_grid.is_none() {
+            self.trackers[j].search_grid = self.trackers[k].search_grid;
+        }
+        let u = self.trackers[k].clamp(u);
+        let v = self.trackers[j].next_probe([0.0, 0.0]);
+        self.set_mirror(k, u);
+        self.set_mirror(j, v);
+        self.last = Step::Search { k };
+        self.action(false)
+    }
+
+    /// Learns from a search: nothing seen is a miss for both mirrors; a beam that showed
+    /// is told whose by the next move.
+    fn observe_search(&mut self, before: &View, after: &View, k: usize) {
+        let moved = motion(before, after, self.scales.steady(), None, None);
+        match moved.to {
+            Some(seen) => self.appeared = Some(seen.beam),
+            None => {
+                self.observe_probe(before, after, k, None);
+                let j = 1 - k;
+                let v = self.mirror(j);
+                self.trackers[j].add_missing(v);
+            }
+        }
+    }
+
+    /// Moves mirror `k` alone a short way (its first, cautious probe length along its
+    /// first axis, towards the middle of its range): the beam a search showed moves if it
+    /// is beam `k`.
+    fn attribute(&mut self, k: usize, appeared: Beam) -> Action {
+        self.before = [self.mirror(0), self.mirror(1)];
+        let now = self.mirror(k);
+        let [low, high] = self.trackers[k].range[0];
+        let step = CAUTIOUS_SHARE * (high - low);
+        let towards_middle = if now[0] > (low + high) / 2.0 {
+            -step
+        } else {
+            step
+        };
+        let u = self.trackers[k].clamp([now[0] + towards_middle, now[1]]);
+        self.set_mirror(k, u);
+        self.last = Step::Attribute { k, appeared };
+        self.action(false)
+    }
+
+    /// Learns from an attribution move of mirror `k`: a beam it moved is beam `k`
+    /// (learned as a probe); else the beam the search showed is the other mirror's.
+    fn observe_attribute(&mut self, before: &View, after: &View, k: usize, appeared: &Beam) {
+        let seen = self.observe_probe(before, after, k, None)
+            || !self.trackers[k].clean.is_empty()
+            || !self.trackers[k].partial.is_empty();
+        if seen {
+            return;
+        }
+        let j = 1 - k;
+        let old = self.before[k];
+        self.trackers[k].add_missing(old);
+        let sighting = sight(appeared, before, &self.scales, j, None);
+        let v = self.mirror(j);
+        self.trackers[j].file(v, Some(sighting));
     }
 
     /// Sets mirror `k`'s command, booking the move on its tracker.
@@ -633,5 +764,25 @@ impl MichelsonAgent {
         } else {
             None
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_search_grid_tiles_the_image_along_each_axis() {
+        // Axis 1 moves the beam 0.68 px per step horizontally, axis 2 0.64 px vertically.
+        let gain = [[0.68, 0.0], [0.0, -0.64]];
+        let grid = search_grid(gain, [1920.0, 1080.0]);
+        assert!((grid[0] * 0.68 - GRID_VIEW_SHARE * 1920.0).abs() < 1e-6);
+        assert!((grid[1] * 0.64 - GRID_VIEW_SHARE * 1080.0).abs() < 1e-6);
+        // Rotated 45 degrees, each axis moves the beam along both image axes: the shorter
+        // side limits the spacing.
+        let diagonal = [[0.5, -0.5], [0.5, 0.5]];
+        let grid = search_grid(diagonal, [1920.0, 1080.0]);
+        assert!((grid[0] - GRID_VIEW_SHARE * 1080.0 / 0.5).abs() < 1e-6);
+        assert!((grid[1] - GRID_VIEW_SHARE * 1080.0 / 0.5).abs() < 1e-6);
     }
 }
