@@ -465,7 +465,7 @@ impl MichelsonAgent {
         self.missed = found
             .iter()
             .position(Option::is_none)
-            .or_else(|| (0..2).find(|&k| self.stuck(k, found[k], predicted[k])));
+            .or_else(|| (0..2).find(|&k| self.stuck(k, found, predicted)));
         self.last_found = [0, 1].map(|k| found[k].map(|c| (self.mirror(k), c)));
         let within = found
             .iter()
@@ -498,17 +498,21 @@ impl MichelsonAgent {
         confirmed && !relearned
     }
 
-    /// Whether beam `k`, found at `seen` off its prediction, sat there at the last check for
-    /// the same command too: checks that neither move its mirror nor correct its map repeat
-    /// the miss, so the mirror is moved alone (a relocation) to give its map new sightings.
-    fn stuck(&self, k: usize, seen: Option<Vec2>, predicted: Vec2) -> bool {
-        let (Some(seen), Some((command, then))) = (seen, self.last_found[k]) else {
+    /// Whether beam `k`, found off its prediction by more than the other beam (found
+    /// where the checked beams were `found`, predicted at `predicted`), sat there at the
+    /// last check for the same command too: checks that neither move its mirror nor correct
+    /// its map repeat the miss that keeps them from confirming, so the mirror is moved
+    /// alone (a relocation) to give its map new sightings.
+    fn stuck(&self, k: usize, found: [Option<Vec2>; 2], predicted: [Vec2; 2]) -> bool {
+        let (Some(seen), Some((command, then))) = (found[k], self.last_found[k]) else {
             return false;
         };
+        let miss = |i: usize| found[i].map_or(f64::INFINITY, |c| distance(c, predicted[i]));
         let confirm = self.confirm_px(k);
         distance(command, self.mirror(k)) < SAME_STEP
             && distance(seen, then) < confirm
-            && distance(seen, predicted) > confirm
+            && miss(k) > confirm
+            && miss(k) >= miss(1 - k)
     }
 
     /// How close a checked beam must land to its prediction to confirm the map, px.
