@@ -9,8 +9,9 @@
 //! farther by the ratio of the stations' distances (from the brief's bench geometry; when
 //! the bench did not give it, the far response is measured there), and centres it with
 //! that response, refined by Broyden updates. Features that stay put while the mirror
-//! tilts are stray light, remembered per station. Light lost at the far station sends the
-//! camera back to the near station. At C8, with a centred compact spot, it declares done.
+//! tilts are stray light, remembered per station. Light lost at the far station is looked
+//! for there in views around the expected place (its response is known), then by going
+//! back to the near station. At C8, with a centred compact spot, it declares done.
 //! Every move of the camera places it a little differently: at C8, where the result is
 //! judged, the spot's place is averaged over as many placements as the camera mover's
 //! repeatability (from the brief, or the spread the visits show) calls for.
