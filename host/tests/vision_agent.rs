@@ -229,14 +229,24 @@ async fn the_vision_agent_aligns_the_relay_with_every_response_a_quarter_and_fou
  {
     // At four times the response the beam starts off the sensor at C1: the search grid is
     // sized from the brief's tilt per step and station distances, not from any constant.
-    for (scale, seed) in [(0.25, 1), (4.0, 1), (4.0, 6)] {
+    aligns_with_the_response_scaled(&[
+        (TaskKind::Relay, 0.25, 1),
+        (TaskKind::Relay, 4.0, 1),
+        (TaskKind::Relay, 4.0, 6),
+    ])
+    .await;
+}
+
+/// Asserts that every `(task, sensitivity scale, seed)` run aligns and is declared done.
+async fn aligns_with_the_response_scaled(runs: &[(TaskKind, f64, u64)]) {
+    for &(task, scale, seed) in runs {
         let scenario = Knob::SensitivityScale
             .apply(&ScenarioFile::default(), scale)
             .expect("a valid scale");
-        let summary = run_on(TaskKind::Relay, seed, scenario, None).await;
+        let summary = run_on(task, seed, scenario, None).await;
         assert!(
             summary.success && summary.declared_done,
-            "x{scale}, seed {seed}: {summary:?}"
+            "{task} x{scale}, seed {seed}: {summary:?}"
         );
     }
 }
@@ -248,20 +258,12 @@ async fn the_vision_agent_aligns_the_michelson_and_the_cavity_at_a_quarter_and_f
     // joint search and the tiled grid (seed 5 of 0..9 still does). At x0.25 the Michelson
     // fails seeds 1, 5, 6 and 9 of 0..9 and the cavity at x4 seeds 0, 2 and 5
     // (docs/results.md): these starts guard what holds.
-    for (task, scale, seed) in [
+    aligns_with_the_response_scaled(&[
         (TaskKind::Michelson, 4.0, 3),
         (TaskKind::Michelson, 0.25, 2),
         (TaskKind::Cavity, 4.0, 3),
-    ] {
-        let scenario = Knob::SensitivityScale
-            .apply(&ScenarioFile::default(), scale)
-            .expect("a valid scale");
-        let summary = run_on(task, seed, scenario, None).await;
-        assert!(
-            summary.success && summary.declared_done,
-            "{task} x{scale}, seed {seed}: {summary:?}"
-        );
-    }
+    ])
+    .await;
 }
 
 #[tokio::test]

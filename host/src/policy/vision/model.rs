@@ -105,6 +105,12 @@ pub fn column_norm(gain: [[f64; 2]; 2]) -> f64 {
         .max(gain[0][1].hypot(gain[1][1]))
 }
 
+/// Where a feature seen at `at` under command `from` shows under command `to`, by the
+/// response `gain` (px per step, columns per axis).
+pub fn carried(gain: [[f64; 2]; 2], from: Vec2, at: Vec2, to: Vec2) -> Vec2 {
+    Affine { offset: at, gain }.predict([to[0] - from[0], to[1] - from[1]])
+}
+
 /// Euclidean distance.
 pub fn distance(a: Vec2, b: Vec2) -> f64 {
     (a[0] - b[0]).hypot(a[1] - b[1])

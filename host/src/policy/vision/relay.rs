@@ -22,7 +22,7 @@
 use optalign_optics::{Frame, Station};
 
 use super::lash::Lash;
-use super::model::{Affine, Tracker, Vec2, column_norm, distance, square_rings};
+use super::model::{Affine, Tracker, Vec2, carried, column_norm, distance, square_rings};
 use super::see::{View, motion, stationary_pairs};
 use super::servo::{Servo, Spot, useful_probe};
 use crate::imaging::Beam;
@@ -551,11 +551,11 @@ impl RelayAgent {
         }
         let gain = self.far.gain()?;
         let n = self.placements.len() as f64;
-        let mut sum = [0.0; 2];
-        for (load, at) in &self.placements {
-            let carried = Affine { offset: *at, gain }.predict([u[0] - load[0], u[1] - load[1]]);
-            sum = [sum[0] + carried[0], sum[1] + carried[1]];
-        }
+        let sum = self
+            .placements
+            .iter()
+            .map(|&(load, at)| carried(gain, load, at, u))
+            .fold([0.0; 2], |s, p| [s[0] + p[0], s[1] + p[1]]);
         Some(sum.map(|v| v / n))
     }
 

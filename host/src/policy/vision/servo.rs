@@ -17,7 +17,7 @@
 
 use nalgebra::Matrix2;
 
-use super::model::{Affine, Vec2, column_norm, distance};
+use super::model::{Affine, Vec2, carried, column_norm, distance};
 
 /// A cut spot counts as this many image shorter sides farther than any whole one, less
 /// the share of a whole spot's light it shows.
@@ -141,14 +141,13 @@ impl Servo {
     pub fn moved_since_last(&self, tilt: Vec2, seen: &Spot, side: f64) -> Option<(Vec2, Vec2)> {
         let gain = self.gain.filter(|_| self.trust == Trust::Measured)?;
         let (from, was) = self.last.filter(|(_, was)| was.whole && seen.whole)?;
+        if distance(carried(gain, from, was.at, tilt), was.at) < MIN_MOVE_SHARE * side {
+            return None;
+        }
         let response = Affine {
             offset: was.at,
             gain,
         };
-        let meant = response.predict([tilt[0] - from[0], tilt[1] - from[1]]);
-        if distance(meant, was.at) < MIN_MOVE_SHARE * side {
-            return None;
-        }
         Some((from, response.solve(seen.at)?))
     }
 
@@ -160,10 +159,16 @@ impl Servo {
     /// Forgets a response that proved wrong: the next commands probe again from the best
     /// tilt, with probes that would move the spot a useful share of the image at its scale.
     fn forget_gain(&mut self, side: f64) {
-        if let Some(gain) = self.gain.take() {
+        if let Some(gain) = self.gain {
             self.probe = useful_probe(side, column_norm(gain).max(1e-9))
                 .clamp(self.bounds[0], self.bounds[1]);
         }
+        self.drop_gain();
+    }
+
+    /// Drops the response: the next commands probe both axes again from the best tilt.
+    fn drop_gain(&mut self) {
+        self.gain = None;
         self.trust = Trust::Measured;
         self.columns = [None; 2];
         self.pending = Pending::Nothing;
@@ -280,7 +285,7 @@ impl Servo {
         };
         if self.trust == Trust::Assumed {
             let landed_as_predicted = between_whole.is_some_and(|(from, was, now)| {
-                let predicted = predicted_at(&gain, from, was, tilt);
+                let predicted = carried(gain, from, was.at, tilt);
                 let moved = distance(predicted, was.at);
                 distance(predicted, now.at) < CONFIRM_SHARE * moved
             });
@@ -293,7 +298,7 @@ impl Servo {
         }
         // A move too short to show beyond the centroids' noise teaches nothing.
         if let (Some((from, was, now)), Some(gain)) = (between_whole, &mut self.gain)
-            && distance(was.at, now.at).max(distance(predicted_at(gain, from, was, tilt), was.at))
+            && distance(was.at, now.at).max(distance(carried(*gain, from, was.at, tilt), was.at))
                 >= MIN_MOVE_SHARE * side
         {
             broyden(gain, from, was.at, tilt, now.at);
@@ -345,10 +350,7 @@ impl Servo {
                     // A spot the response says is where it should be, when it is cut or was
                     // just seen off the target: the response is wrong. Probe again from the
                     // best tilt.
-                    self.gain = None;
-                    self.trust = Trust::Measured;
-                    self.columns = [None; 2];
-                    self.pending = Pending::Nothing;
+                    self.drop_gain();
                     if !best.spot.whole {
                         self.probe = (self.probe * GROWTH).min(self.bounds[1]);
                     }
@@ -365,15 +367,6 @@ impl Servo {
 /// `side` px at a response of `response` px per step.
 pub fn useful_probe(side: f64, response: f64) -> f64 {
     PROBE_VIEW_SHARE * side / response
-}
-
-/// Where `gain` says a spot seen as `was` at tilt `from` shows at tilt `to`.
-fn predicted_at(gain: &[[f64; 2]; 2], from: Vec2, was: Spot, to: Vec2) -> Vec2 {
-    Affine {
-        offset: was.at,
-        gain: *gain,
-    }
-    .predict([to[0] - from[0], to[1] - from[1]])
 }
 
 /// The servo's ranking of what was seen (`None` when nothing was).
