@@ -307,13 +307,11 @@ impl CavityAgent {
             s.change.size() >= MIN_CHANGE_RADIUS_PX
                 && known.is_none_or(|r| (0.5..MAX_SIZE_RATIO).contains(&(s.change.size() / r)))
         };
-        let appeared = moved.to.filter(|s| {
-            outside(s) && expected_near(s.beam.centre) && like_secondary(s)
-        });
+        let appeared = moved
+            .to
+            .filter(|s| outside(s) && expected_near(s.beam.centre) && like_secondary(s));
         let vanished = moved.from.filter(|s| {
-            outside(s)
-                && like_secondary(s)
-                && appeared.is_none_or(|a| alike(&a.change, &s.change))
+            outside(s) && like_secondary(s) && appeared.is_none_or(|a| alike(&a.change, &s.change))
         });
         if let (Some(a), Some(v)) = (appeared, vanished)
             && distance(a.beam.centre, v.beam.centre)
