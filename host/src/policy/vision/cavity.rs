@@ -3,13 +3,14 @@
 //! the only thing that moves with the in-coupler; rings, halo, ghosts and stray light
 //! cancel, and the laser's power drift is taken out first; when the primary jittered, it
 //! carried its rings, halo and ghosts along, so the earlier frame is first moved by as
-//! much as the primary's core moved). Nothing about the bench is
-//! assumed beyond the command ranges: the first probe is a cautious share of the range,
-//! later ones are sized from the measured response to move the secondary a useful number
-//! of its own radii; while it has not been seen, a search widens in big steps across the
-//! range. Probes along each axis give an affine motor-to-image map; the agent then
-//! commands a point just outside the primary's footprint to check the map where it
-//! matters, and declares done at the target the refined map gives.
+//! much as the primary's core moved). Nothing about the bench is assumed beyond the
+//! command ranges: the first probe is a cautious share of the range, later ones are sized
+//! from the measured response to move the secondary a useful number of its own radii;
+//! while it has not been seen, a search moves in big steps around the start, then covers
+//! the whole range on finer and finer grids. Probes along each axis give an affine
+//! motor-to-image map; the agent then commands a point just outside the primary's
+//! footprint to check the map where it matters, and declares done at the target the
+//! refined map gives.
 
 use optalign_optics::Frame;
 
@@ -63,8 +64,12 @@ const CHECK_CLEARANCE_RADII: f64 = 1.5;
 /// (or within the position noise, when that is larger).
 const CONFIRM_RADII: f64 = 0.4;
 
-/// The primary's centre is the centroid of its light above this share of its peak.
+/// The primary's centre is the centroid of its light above this share of its peak, and
+/// its core the light above it ...
 const PRIMARY_CORE_SHARE: f64 = 0.5;
+
+/// ... within this many of its radii.
+const CORE_REACH_RADII: f64 = 2.0;
 
 /// A change farther than this many radii from the prediction is not the secondary.
 const MATCH_RADII: f64 = 3.0;
@@ -120,16 +125,13 @@ impl CavityAgent {
     pub fn decide(&mut self, frame: &Frame, rejected: bool, remaining: usize) -> Action {
         let view = View::new(frame);
         self.scales.learn_view(&view);
-        let Primary {
-            centre: target,
-            radius: primary_radius,
-            core,
-        } = *self.primary.get_or_insert_with(|| Primary::measure(&view));
+        let primary = *self.primary.get_or_insert_with(|| Primary::measure(&view));
+        let (target, primary_radius) = (primary.centre, primary.radius);
         if self.scales.known_radius(PRIMARY).is_none() {
             self.scales.learn_size(PRIMARY, primary_radius);
         }
         self.tracker.noise = self.scales.model_noise();
-        let confirmed = !rejected && self.observe(&view, target, [primary_radius, core]);
+        let confirmed = !rejected && self.observe(&view, primary);
         self.previous = Some(view);
         let Some(_) = self.tracker.model() else {
             let u = if remaining <= 1 {
@@ -196,6 +198,7 @@ impl CavityAgent {
             "phase": phase,
             "target_px": self.primary.map(|p| p.centre),
             "primary_radius_px": self.primary.map(|p| p.radius),
+            "primary_core_radius_px": self.primary.map(|p| p.core),
             "secondary": self.tracker.claims(self.command),
             "bench": self.scales.claims(),
         })
@@ -268,9 +271,8 @@ impl CavityAgent {
     }
 
     /// Learns from the last move; true when a check point matched its prediction.
-    /// `primary`: the primary's radius and the radius of its core, px.
-    fn observe(&mut self, view: &View, target: Vec2, primary: Vec2) -> bool {
-        let [primary_radius, core] = primary;
+    fn observe(&mut self, view: &View, primary: Primary) -> bool {
+        let (target, primary_radius) = (primary.centre, primary.radius);
         let Some(before) = self.previous.take() else {
             return false;
         };
@@ -295,7 +297,7 @@ impl CavityAgent {
         // there is a map.
         let outside = |s: &Seen| {
             let off = distance(s.change.centre, target);
-            distance(s.beam.centre, target) > hidden || off - s.change.size() > core
+            distance(s.beam.centre, target) > hidden || off - s.change.size() > primary.core
         };
         let expected_near = |centre: Vec2| {
             expected.is_none_or(|p| distance(centre, p) < MATCH_RADII * radius.max(hidden))
@@ -439,7 +441,7 @@ impl Primary {
 fn core_radius(picture: &Picture, centre: Vec2, beam: &Beam, share: f64) -> f64 {
     let level = (share * beam.peak) as f32;
     let (w, h) = (picture.width(), picture.height());
-    let reach = beam.size() * 2.0;
+    let reach = CORE_REACH_RADII * beam.size();
     let span = |c: f64, side: usize| {
         let lo = (c - reach).floor().max(0.0) as usize;
         let hi = ((c + reach).ceil().max(0.0) as usize).min(side);
