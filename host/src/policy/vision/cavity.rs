@@ -17,7 +17,7 @@ use optalign_optics::Frame;
 use super::model::{SAME_STEP, Sighting, Tracker, Vec2, distance};
 use super::see::{Seen, View, alike, registered_motion, stationary_pairs};
 use super::sight::{Scales, sight};
-use crate::imaging::{Beam, Picture, core_centre, nearest, scene_shift};
+use crate::imaging::{Beam, Picture, core_centre, nearest, registered_changes, scene_shift};
 use crate::task::{Action, CavityLimits};
 
 /// The secondary is feature 0 of the learned scales, the primary feature 1.
@@ -348,7 +348,9 @@ impl CavityAgent {
                 change => change,
             }
         };
-        let seen_to = appeared.map(|s| judge(&s, view));
+        let seen_to = appeared
+            .map(|s| judge(&s, view))
+            .or_else(|| self.under_core(&before, view, shift, primary));
         let seen_from = vanished.map(|s| judge(&s, &before));
         let untried = !self.tracker.tried_within(self.before, SAME_STEP);
         self.tracker.file(self.command, seen_to);
@@ -375,6 +377,37 @@ impl CavityAgent {
             }
             _ => false,
         }
+    }
+
+    /// While the secondary was never seen: light that appeared on the edge of the primary's
+    /// core, with none vanishing there, is the rim of a secondary the core hides (the core
+    /// shows nothing of it; where the primary's scene shifted, by `shift`, light would
+    /// vanish beside it too). A partial sighting there, so that the next probes move it
+    /// out, instead of a miss at the very command that aligns it.
+    fn under_core(
+        &self,
+        before: &View,
+        view: &View,
+        shift: Vec2,
+        primary: Primary,
+    ) -> Option<Sighting> {
+        if !self.tracker.clean.is_empty() || !self.tracker.partial.is_empty() {
+            return None;
+        }
+        let changes = registered_changes(&before.picture, &view.picture, shift);
+        let on_core = |b: &&Beam| {
+            b.size() >= MIN_CHANGE_RADIUS_PX
+                && distance(b.centre, primary.centre) - b.size() <= primary.core
+        };
+        if changes.vanished.iter().any(|b| on_core(&b)) {
+            return None;
+        }
+        changes
+            .appeared
+            .iter()
+            .filter(on_core)
+            .max_by(|a, b| a.signal.total_cmp(&b.signal))
+            .map(|b| Sighting::Partial(b.centre))
     }
 
     /// Sizes later probes from the response one probe showed (the secondary moved from
