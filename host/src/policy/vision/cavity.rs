@@ -3,20 +3,21 @@
 //! the only thing that moves with the in-coupler; rings, halo, ghosts and stray light
 //! cancel, and the laser's power drift is taken out first; when the primary jittered, it
 //! carried its rings, halo and ghosts along, so the earlier frame is first moved by as
-//! much as the primary's core moved). Nothing about the bench is
-//! assumed beyond the command ranges: the first probe is a cautious share of the range,
-//! later ones are sized from the measured response to move the secondary a useful number
-//! of its own radii; while it has not been seen, a search widens in big steps across the
-//! range. Probes along each axis give an affine motor-to-image map; the agent then
-//! commands a point just outside the primary's footprint to check the map where it
-//! matters, and declares done at the target the refined map gives.
+//! much as the primary's core moved). Nothing about the bench is assumed beyond the
+//! command ranges: the first probe is a cautious share of the range, later ones are sized
+//! from the measured response to move the secondary a useful number of its own radii;
+//! while it has not been seen, a search moves in big steps around the start, then covers
+//! the whole range on finer and finer grids. Probes along each axis give an affine
+//! motor-to-image map; the agent then commands a point just outside the primary's
+//! footprint to check the map where it matters, and declares done at the target the
+//! refined map gives.
 
 use optalign_optics::Frame;
 
 use super::model::{SAME_STEP, Sighting, Tracker, Vec2, distance};
 use super::see::{Seen, View, alike, registered_motion, stationary_pairs};
 use super::sight::{Scales, sight};
-use crate::imaging::{core_centre, nearest, scene_shift};
+use crate::imaging::{Beam, Picture, core_centre, nearest, registered_changes, scene_shift};
 use crate::task::{Action, CavityLimits};
 
 /// The secondary is feature 0 of the learned scales, the primary feature 1.
@@ -28,6 +29,9 @@ const CAUTIOUS_SHARE: f64 = 1.0 / 32.0;
 
 /// While the secondary has not been seen, the search steps by this share of the range.
 const SEARCH_SHARE: f64 = 0.25;
+
+/// After its first rings, the search covers the range on grids this many times finer.
+const SEARCH_LEVELS: usize = 4;
 
 /// Probe lengths stay within these shares of the command range.
 const PROBE_SHARES: Vec2 = [1.0 / 64.0, 1.0 / 3.0];
@@ -60,8 +64,12 @@ const CHECK_CLEARANCE_RADII: f64 = 1.5;
 /// (or within the position noise, when that is larger).
 const CONFIRM_RADII: f64 = 0.4;
 
-/// The primary's centre is the centroid of its light above this share of its peak.
+/// The primary's centre is the centroid of its light above this share of its peak, and
+/// its core the light above it ...
 const PRIMARY_CORE_SHARE: f64 = 0.5;
+
+/// ... within this many of its radii.
+const CORE_REACH_RADII: f64 = 2.0;
 
 /// A change farther than this many radii from the prediction is not the secondary.
 const MATCH_RADII: f64 = 3.0;
@@ -84,8 +92,8 @@ pub struct CavityAgent {
     command: Vec2,
     before: Vec2,
     previous: Option<View>,
-    /// The primary's centre and radius, px, measured on the first frame.
-    primary: Option<(Vec2, f64)>,
+    /// The primary, measured on the first frame.
+    primary: Option<Primary>,
     /// The beams' sizes, the jitter and the position noise, as measured.
     scales: Scales,
     last: Step,
@@ -117,12 +125,13 @@ impl CavityAgent {
     pub fn decide(&mut self, frame: &Frame, rejected: bool, remaining: usize) -> Action {
         let view = View::new(frame);
         self.scales.learn_view(&view);
-        let (target, primary_radius) = *self.primary.get_or_insert_with(|| primary(&view));
+        let primary = *self.primary.get_or_insert_with(|| Primary::measure(&view));
+        let (target, primary_radius) = (primary.centre, primary.radius);
         if self.scales.known_radius(PRIMARY).is_none() {
             self.scales.learn_size(PRIMARY, primary_radius);
         }
         self.tracker.noise = self.scales.model_noise();
-        let confirmed = !rejected && self.observe(&view, target, primary_radius);
+        let confirmed = !rejected && self.observe(&view, primary);
         self.previous = Some(view);
         let Some(_) = self.tracker.model() else {
             let u = if remaining <= 1 {
@@ -187,45 +196,83 @@ impl CavityAgent {
         };
         serde_json::json!({
             "phase": phase,
-            "target_px": self.primary.map(|p| p.0),
-            "primary_radius_px": self.primary.map(|p| p.1),
+            "target_px": self.primary.map(|p| p.centre),
+            "primary_radius_px": self.primary.map(|p| p.radius),
+            "primary_core_radius_px": self.primary.map(|p| p.core),
             "secondary": self.tracker.claims(self.command),
             "bench": self.scales.claims(),
         })
     }
 
-    /// The next command of the search for a secondary never seen: rings around the start
-    /// in steps of a large share of the range, halving the step once a ring is done.
+    /// The next command of the search for a secondary never seen: two rings around the
+    /// start in steps of a large share of the range, then finer and finer grids over the
+    /// whole range, each of half the spacing of the one before: first the centres of the
+    /// coarser grid's cells (the points farthest from every point tried), then the
+    /// midpoints of their edges, nearest the start first. A response larger than the
+    /// rings assumed shows the secondary only in a patch of commands smaller than their
+    /// spacing, anywhere in the range, not only near the start.
     fn search(&self) -> Vec2 {
-        let mut step = self.spans.map(|s| SEARCH_SHARE * s);
-        for _ in 0..4 {
-            let ring = [
-                [1.0, 0.0],
-                [-1.0, 0.0],
-                [0.0, 1.0],
-                [0.0, -1.0],
-                [1.0, 1.0],
-                [-1.0, 1.0],
-                [1.0, -1.0],
-                [-1.0, -1.0],
-            ];
-            for multiple in [1.0, 2.0] {
-                for d in ring {
-                    let u = self
-                        .tracker
-                        .clamp([d[0] * step[0] * multiple, d[1] * step[1] * multiple]);
-                    if !self.tracker.tried_within(u, 0.25 * step[0].min(step[1])) {
-                        return u;
-                    }
-                }
+        let step = self.spans.map(|s| SEARCH_SHARE * s);
+        let untried = |u: Vec2, spacing: Vec2| {
+            !self
+                .tracker
+                .tried_within(u, 0.25 * spacing[0].min(spacing[1]))
+        };
+        let ring = [
+            [1.0, 0.0],
+            [-1.0, 0.0],
+            [0.0, 1.0],
+            [0.0, -1.0],
+            [1.0, 1.0],
+            [-1.0, 1.0],
+            [1.0, -1.0],
+            [-1.0, -1.0],
+        ];
+        let rings = [1.0, 2.0]
+            .into_iter()
+            .flat_map(|multiple| ring.map(|d| [0, 1].map(|a| d[a] * step[a] * multiple)));
+        if let Some(u) = rings
+            .map(|u| self.tracker.clamp(u))
+            .find(|&u| untried(u, step))
+        {
+            return u;
+        }
+        let mut spacing = step;
+        for _ in 0..SEARCH_LEVELS {
+            let half = spacing.map(|s| s / 2.0);
+            let indices = |axis: usize| {
+                let [lo, hi] = self.tracker.range[axis];
+                let first = (lo / half[axis]).floor() as i64;
+                let last = (hi / half[axis]).ceil() as i64;
+                first..=last
+            };
+            let mut points: Vec<([i64; 2], Vec2)> = indices(0)
+                .flat_map(|i| indices(1).map(move |j| [i, j]))
+                .filter(|[i, j]| i % 2 != 0 || j % 2 != 0)
+                .map(|[i, j]| {
+                    let u = [i as f64 * half[0], j as f64 * half[1]];
+                    ([i, j], self.tracker.clamp(u))
+                })
+                .collect();
+            let far = |u: Vec2| (u[0] / step[0]).hypot(u[1] / step[1]);
+            // Cell centres (both indices odd) first, then edge midpoints; nearest first.
+            points.sort_by(|(a, u), (b, v)| {
+                let on_edge = |[i, j]: [i64; 2]| i % 2 == 0 || j % 2 == 0;
+                on_edge(*a)
+                    .cmp(&on_edge(*b))
+                    .then(far(*u).total_cmp(&far(*v)))
+            });
+            if let Some((_, u)) = points.into_iter().find(|&(_, u)| untried(u, half)) {
+                return u;
             }
-            step = step.map(|s| s / 2.0);
+            spacing = half;
         }
         self.tracker.next_probe([0.0, 0.0])
     }
 
     /// Learns from the last move; true when a check point matched its prediction.
-    fn observe(&mut self, view: &View, target: Vec2, primary_radius: f64) -> bool {
+    fn observe(&mut self, view: &View, primary: Primary) -> bool {
+        let (target, primary_radius) = (primary.centre, primary.radius);
         let Some(before) = self.previous.take() else {
             return false;
         };
@@ -244,9 +291,14 @@ impl CavityAgent {
         let moved = registered_motion(&before, view, shift, self.scales.steady(), expected, None);
         let radius = self.scales.radius(SECONDARY);
         let hidden = HIDDEN_RADII * primary_radius;
-        // The secondary shows outside the primary's footprint, and where it went near
-        // where the map expects it once there is a map.
-        let outside = |centre: Vec2| distance(centre, target) > hidden;
+        // The secondary shows outside the primary's footprint, or where the change is clear
+        // of the primary's core (what the core covers, a saturated core above all, does not
+        // show in a difference), and where it went near where the map expects it once
+        // there is a map.
+        let outside = |s: &Seen| {
+            let off = distance(s.change.centre, target);
+            distance(s.beam.centre, target) > hidden || off - s.change.size() > primary.core
+        };
         let expected_near = |centre: Vec2| {
             expected.is_none_or(|p| distance(centre, p) < MATCH_RADII * radius.max(hidden))
         };
@@ -257,13 +309,11 @@ impl CavityAgent {
             s.change.size() >= MIN_CHANGE_RADIUS_PX
                 && known.is_none_or(|r| (0.5..MAX_SIZE_RATIO).contains(&(s.change.size() / r)))
         };
-        let appeared = moved.to.filter(|s| {
-            outside(s.beam.centre) && expected_near(s.beam.centre) && like_secondary(s)
-        });
+        let appeared = moved
+            .to
+            .filter(|s| outside(s) && expected_near(s.beam.centre) && like_secondary(s));
         let vanished = moved.from.filter(|s| {
-            outside(s.beam.centre)
-                && like_secondary(s)
-                && appeared.is_none_or(|a| alike(&a.change, &s.change))
+            outside(s) && like_secondary(s) && appeared.is_none_or(|a| alike(&a.change, &s.change))
         });
         if let (Some(a), Some(v)) = (appeared, vanished)
             && distance(a.beam.centre, v.beam.centre)
@@ -298,7 +348,9 @@ impl CavityAgent {
                 change => change,
             }
         };
-        let seen_to = appeared.map(|s| judge(&s, view));
+        let seen_to = appeared
+            .map(|s| judge(&s, view))
+            .or_else(|| self.under_core(&before, view, shift, primary));
         let seen_from = vanished.map(|s| judge(&s, &before));
         let untried = !self.tracker.tried_within(self.before, SAME_STEP);
         self.tracker.file(self.command, seen_to);
@@ -327,6 +379,37 @@ impl CavityAgent {
         }
     }
 
+    /// While the secondary was never seen: light that appeared on the edge of the primary's
+    /// core, with none vanishing there, is the rim of a secondary the core hides (the core
+    /// shows nothing of it; where the primary's scene shifted, by `shift`, light would
+    /// vanish beside it too). A partial sighting there, so that the next probes move it
+    /// out, instead of a miss at the very command that aligns it.
+    fn under_core(
+        &self,
+        before: &View,
+        view: &View,
+        shift: Vec2,
+        primary: Primary,
+    ) -> Option<Sighting> {
+        if !self.tracker.clean.is_empty() || !self.tracker.partial.is_empty() {
+            return None;
+        }
+        let changes = registered_changes(&before.picture, &view.picture, shift);
+        let on_core = |b: &&Beam| {
+            b.size() >= MIN_CHANGE_RADIUS_PX
+                && distance(b.centre, primary.centre) - b.size() <= primary.core
+        };
+        if changes.vanished.iter().any(|b| on_core(&b)) {
+            return None;
+        }
+        changes
+            .appeared
+            .iter()
+            .filter(on_core)
+            .max_by(|a, b| a.signal.total_cmp(&b.signal))
+            .map(|b| Sighting::Partial(b.centre))
+    }
+
     /// Sizes later probes from the response one probe showed (the secondary moved from
     /// `vanished` to `appeared`).
     fn size_probe(&mut self, radius: f64, vanished: Vec2, appeared: Vec2) {
@@ -353,14 +436,54 @@ impl CavityAgent {
     }
 }
 
-/// The primary: the brightest beam in the first frame (the centre of its bright core,
-/// which faint ghosts on its halo do not pull, and its radius), else the image centre.
-fn primary(view: &View) -> (Vec2, f64) {
-    view.beams
-        .first()
-        .map(|b| {
-            let centre = core_centre(&view.picture, b, PRIMARY_CORE_SHARE).unwrap_or(b.centre);
-            (centre, b.size())
-        })
-        .unwrap_or((view.centre(), 0.05 * view.size()[0].min(view.size()[1])))
+/// The primary: where it is, how large, and how large its bright core.
+#[derive(Clone, Copy, Debug)]
+struct Primary {
+    /// The centre of its bright core (faint ghosts on its halo do not pull it), px.
+    centre: Vec2,
+    /// Its second-moment radius, px.
+    radius: f64,
+    /// The radius of the disc as large as its light above [`PRIMARY_CORE_SHARE`] of its
+    /// peak, px.
+    core: f64,
+}
+
+impl Primary {
+    /// The brightest beam in the first frame, else a disc of a share of the image at its
+    /// centre.
+    fn measure(view: &View) -> Self {
+        let Some(b) = view.beams.first() else {
+            let radius = 0.05 * view.size()[0].min(view.size()[1]);
+            return Self {
+                centre: view.centre(),
+                radius,
+                core: radius,
+            };
+        };
+        let centre = core_centre(&view.picture, b, PRIMARY_CORE_SHARE).unwrap_or(b.centre);
+        Self {
+            centre,
+            radius: b.size(),
+            core: core_radius(&view.picture, centre, b, PRIMARY_CORE_SHARE),
+        }
+    }
+}
+
+/// The radius of a disc as large as the area where `beam`, around `centre`, is brighter
+/// than `share` of its peak, px.
+fn core_radius(picture: &Picture, centre: Vec2, beam: &Beam, share: f64) -> f64 {
+    let level = (share * beam.peak) as f32;
+    let (w, h) = (picture.width(), picture.height());
+    let reach = CORE_REACH_RADII * beam.size();
+    let span = |c: f64, side: usize| {
+        let lo = (c - reach).floor().max(0.0) as usize;
+        let hi = ((c + reach).ceil().max(0.0) as usize).min(side);
+        lo..hi
+    };
+    let light = picture.light();
+    let bright = span(centre[1], h)
+        .flat_map(|y| span(centre[0], w).map(move |x| y * w + x))
+        .filter(|&i| light[i] > level || picture.is_saturated(i))
+        .count();
+    (bright as f64 / std::f64::consts::PI).sqrt()
 }
