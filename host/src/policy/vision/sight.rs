@@ -41,6 +41,8 @@ const OVERLAP_RADII: f64 = 1.2;
 pub struct Scales {
     /// Radii of cleanly seen beams, per feature.
     sizes: [Vec<f64>; 2],
+    /// Their major radii, per feature (when learned from the whole beam).
+    majors: [Vec<f64>; 2],
     /// The median radius of the beams in the views so far.
     typical: Option<f64>,
     /// The shorter image side, px.
@@ -71,6 +73,13 @@ impl Scales {
     /// Learns the size of feature `k` from a clean sighting.
     pub fn learn_size(&mut self, k: usize, radius: f64) {
         self.sizes[k].push(radius);
+    }
+
+    /// Learns the size and the length (major radius) of feature `k` from a clean sighting
+    /// of the whole beam.
+    pub fn learn_shape(&mut self, k: usize, beam: &Beam) {
+        self.learn_size(k, beam.size());
+        self.majors[k].push(beam.radii[0]);
     }
 
     /// Learns the jitter from the displacement of features that stayed between two views.
@@ -146,8 +155,19 @@ fn median(values: &mut [f64]) -> Option<f64> {
     Some(*values.select_nth_unstable_by(mid, f64::total_cmp).1)
 }
 
+/// Whether another detection of `view` lies within [`OVERLAP_RADII`] of their summed
+/// sizes of `beam` (one of the view's detections): the detector split one patch of light,
+/// and each part holds some of the other's (a fringe of two merged beams, a stray spot on
+/// the beam's rim).
+pub fn touches(beam: &Beam, view: &View) -> bool {
+    view.beams.iter().any(|other| {
+        let d = distance(other.centre, beam.centre);
+        d > 0.0 && d < OVERLAP_RADII * (other.size() + beam.size())
+    })
+}
+
 /// How `beam`, taken for feature `k`, serves the model: clean when whole, compact, of the
-/// feature's known size and clear of `other` (another known beam's place and radius); a
+/// feature's known size and length and clear of `other` (another known beam's place and radius); a
 /// beam the border cuts is clean at its fitted centre when a Gaussian fits it well and
 /// the centre is not far outside.
 pub fn sight(
@@ -158,7 +178,11 @@ pub fn sight(
     other: Option<(Vec2, f64)>,
 ) -> Sighting {
     let own = scales.known_radius(k);
-    let oversized = own.is_some_and(|r| beam.size() > MAX_SIZE_RATIO * r);
+    // Two beams merged side by side make a detection much longer than either, though its
+    // mean radius may not grow much.
+    let longer = median(&mut scales.majors[k].clone())
+        .is_some_and(|major| beam.radii[0] > MAX_SIZE_RATIO * major);
+    let oversized = longer || own.is_some_and(|r| beam.size() > MAX_SIZE_RATIO * r);
     let radius = own.unwrap_or(beam.size());
     let overlapping =
         other.is_some_and(|(p, r)| distance(beam.centre, p) < OVERLAP_RADII * (r + radius));
