@@ -256,14 +256,15 @@ async fn the_vision_agent_aligns_the_michelson_and_the_cavity_at_a_quarter_and_f
  {
     // Michelson x4: both beams start far off the sensor; seed 3 spent the budget before the
     // joint search and the tiled grid (seed 5 of 0..9 still does). Michelson x0.25: the
-    // command range keeps both beams within a few radii of the centre; seed 9 starts with
-    // them merged and spent the budget steering the probed beam to the centre, onto the
-    // other, until probes were steered clear of it within the reach of the range. The
+    // command range keeps both beams within a few radii of the centre; seed 5 starts with
+    // them on top of each other and spent the budget steering the probed beam to the
+    // centre, onto the other, until probes were steered clear of it within the reach of
+    // the range. The
     // cavity at x4 fails seeds 0, 2 and 5 (docs/results.md): these starts guard what holds.
     aligns_with_the_response_scaled(&[
         (TaskKind::Michelson, 4.0, 3),
         (TaskKind::Michelson, 0.25, 2),
-        (TaskKind::Michelson, 0.25, 9),
+        (TaskKind::Michelson, 0.25, 5),
         (TaskKind::Cavity, 4.0, 3),
     ])
     .await;

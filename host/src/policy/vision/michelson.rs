@@ -508,9 +508,10 @@ impl MichelsonAgent {
 
     /// What the beam of mirror `k` must not be steered onto, and where that beam was last
     /// seen (px): the other beam where its map puts it (where it will be parked, when it
-    /// can be); else the feature that stayed put
-    /// through the last probe nearest the probed beam; else, when the probed beam was last
-    /// seen merged (partly, clear of the border), the merged detection.
+    /// can be); else, when the probed beam was last seen merged (partly, clear of the
+    /// border), the feature that stayed put through the last probe nearest it, or the
+    /// merged detection itself when none did. Features that stayed put are not avoided
+    /// while the probed beam shows clean: stray spots would push the probes about.
     fn obstacle(&self, k: usize, centre: Vec2) -> Option<(Vec2, Vec2)> {
         let tracker = &self.trackers[k];
         let latest = tracker
@@ -527,16 +528,16 @@ impl MichelsonAgent {
         {
             return Some((p, latest.image));
         }
-        if let Some(p) = self
-            .stayed
-            .iter()
-            .min_by(|a, b| distance(**a, latest.image).total_cmp(&distance(**b, latest.image)))
-        {
-            return Some((*p, latest.image));
-        }
         let merged = tracker.partial.iter().any(|s| s.order == latest.order)
             && self.border_axis(k, latest.image, centre).is_none();
-        merged.then_some((latest.image, latest.image))
+        if !merged {
+            return None;
+        }
+        let stayed = self
+            .stayed
+            .iter()
+            .min_by(|a, b| distance(**a, latest.image).total_cmp(&distance(**b, latest.image)));
+        Some((stayed.copied().unwrap_or(latest.image), latest.image))
     }
 
     /// Whether `view` shows a beam where beam `k` was last seen (within the match radius).

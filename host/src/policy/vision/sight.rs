@@ -36,6 +36,14 @@ const MAX_SIZE_RATIO: f64 = 1.6;
 /// A beam closer than this many summed radii to another known beam overlaps it.
 const OVERLAP_RADII: f64 = 1.2;
 
+/// A neighbouring detection this many times brighter than a detection at its peak holds
+/// the light the detection was split from.
+const TOUCH_BRIGHTER: f64 = 1.5;
+
+/// A detection still this share of its peak bright at the border is a sliver of light
+/// that goes on beyond the image.
+const SLIVER_EDGE: f64 = 0.5;
+
 /// What the images taught about this bench.
 #[derive(Clone, Debug, Default)]
 pub struct Scales {
@@ -155,14 +163,18 @@ fn median(values: &mut [f64]) -> Option<f64> {
     Some(*values.select_nth_unstable_by(mid, f64::total_cmp).1)
 }
 
-/// Whether another detection of `view` lies within [`OVERLAP_RADII`] of their summed
-/// sizes of `beam` (one of the view's detections): the detector split one patch of light,
-/// and each part holds some of the other's (a fringe of two merged beams, a stray spot on
-/// the beam's rim).
+/// Whether `beam` (one of the view's detections) is a part of a larger patch of light:
+/// another detection of `view` lies within [`OVERLAP_RADII`] of their summed sizes and is
+/// [`TOUCH_BRIGHTER`] times brighter at its peak (`beam` is a fringe or tail of two merged
+/// beams), or is a sliver the border cuts (at least [`SLIVER_EDGE`] of its peak there: the
+/// other lobe of a two-lobed beam going on beyond the image). Dimmer neighbours are the
+/// beam's own texture; one alike is another beam or a stray spot the detector told apart.
 pub fn touches(beam: &Beam, view: &View) -> bool {
     view.beams.iter().any(|other| {
         let d = distance(other.centre, beam.centre);
-        d > 0.0 && d < OVERLAP_RADII * (other.size() + beam.size())
+        d > 0.0
+            && d < OVERLAP_RADII * (other.size() + beam.size())
+            && (other.peak >= TOUCH_BRIGHTER * beam.peak || other.edge_level >= SLIVER_EDGE)
     })
 }
 
