@@ -15,7 +15,7 @@ use optalign_optics::Frame;
 
 use super::model::{SAME_STEP, Sighting, Tracker, Vec2, column_norm, distance};
 use super::see::{Motion, Seen, View, motion, stationary_pairs};
-use super::sight::{Scales, sight};
+use super::sight::{Scales, sight, touches};
 use crate::imaging::Beam;
 use crate::task::{Action, MichelsonLimits};
 
@@ -100,6 +100,15 @@ const IN_VIEW_RADII: f64 = 1.0;
 /// A partial sighting this many radii from a border was cut by it.
 const BORDER_RADII: f64 = 0.6;
 
+/// A probed beam is steered to where it stays this many times the two beams' summed
+/// radii from the other beam: the detector sees two beams closer than about 1.4 summed
+/// radii as one.
+const APART_RADII: f64 = 2.0;
+
+/// Directions tried for a probe's target, in steps of this angle either way from straight
+/// away from the other beam, radians.
+const TARGET_TURN: f64 = std::f64::consts::PI / 6.0;
+
 /// What the last action was for.
 #[derive(Clone, Copy, Debug, PartialEq)]
 enum Step {
@@ -148,6 +157,8 @@ pub struct MichelsonAgent {
     spans: [f64; 4],
     /// A beam the last search showed, not yet told whose.
     appeared: Option<Beam>,
+    /// Where the features that stayed put through the last probe are, px.
+    stayed: Vec<Vec2>,
 }
 
 impl MichelsonAgent {
@@ -178,6 +189,7 @@ impl MichelsonAgent {
             scales: Scales::default(),
             spans,
             appeared: None,
+            stayed: Vec::new(),
         }
     }
 
@@ -221,7 +233,8 @@ impl MichelsonAgent {
                 .last()
                 .and_then(|s| self.border_axis(k, s.image, centre));
             let margin = IN_VIEW_RADII * self.scales.radius(k);
-            let u = self.trackers[k].next_probe_towards([0.0, 0.0], size, margin, prefer);
+            let target = self.probe_target(k, size);
+            let u = self.trackers[k].next_probe_towards([0.0, 0.0], size, target, margin, prefer);
             if self.blind(k) && self.blind(1 - k) && !self.trackers[k].is_fresh() {
                 return self.search(k, u);
             }
@@ -267,6 +280,7 @@ impl MichelsonAgent {
         let Some(before) = self.previous.take() else {
             return false;
         };
+        self.stayed.clear();
         match self.last {
             Step::Start => false,
             Step::Probe { k, parked } => {
@@ -304,6 +318,7 @@ impl MichelsonAgent {
         let pairs = stationary_pairs(&before.beams, &after.beams, self.scales.steady());
         self.scales
             .learn_steady(&pairs, &before.beams, &after.beams);
+        self.stayed = pairs.iter().map(|&(_, i)| after.beams[i].centre).collect();
         let (old, new) = (self.before[k], self.mirror(k));
         let expected = self.trackers[k].predict(new);
         let moved = motion(before, after, self.scales.steady(), expected, parked);
@@ -324,7 +339,11 @@ impl MichelsonAgent {
                 other.map(|p| (p, radius)),
             );
             match sighting {
-                Sighting::Clean(c) | Sighting::Fitted(c) if !seen.whole => Sighting::Partial(c),
+                Sighting::Clean(c) | Sighting::Fitted(c)
+                    if !seen.whole || touches(&seen.beam, view) =>
+                {
+                    Sighting::Partial(c)
+                }
                 other => other,
             }
         };
@@ -339,7 +358,7 @@ impl MichelsonAgent {
             && let Some(s) = moved.to
             && !s.beam.clipped
         {
-            self.scales.learn_size(k, s.beam.size());
+            self.scales.learn_shape(k, &s.beam);
         }
         // The parked beam, found near where its map sent it.
         if let Some((_, to)) = parked
@@ -418,6 +437,107 @@ impl MichelsonAgent {
             _ => probe,
         };
         self.trackers[k].set_probe(length);
+    }
+
+    /// Where probes of mirror `k` steer its beam on an image of `size`: the centre, unless
+    /// what it must not be steered onto ([`Self::obstacle`]) sits within [`APART_RADII`]
+    /// summed radii of it. Then the point that far from the obstacle, straight away from it
+    /// towards where the probed beam was last seen (through the centre when that is on the
+    /// obstacle), turned as little as keeps it whole in view. At a small response the
+    /// command range holds both beams near the centre, and probes steered there keep them
+    /// merged: the probed beam would never be seen alone.
+    fn probe_target(&self, k: usize, size: Vec2) -> Vec2 {
+        let centre = [size[0] / 2.0, size[1] / 2.0];
+        let Some((other, from)) = self.obstacle(k, centre) else {
+            return centre;
+        };
+        let apart = APART_RADII * (self.scales.radius(0) + self.scales.radius(1));
+        if distance(other, centre) >= apart {
+            return centre;
+        }
+        let margin = (WHOLE_RADII * self.scales.radius(k)).min(size[0].min(size[1]) / 2.0);
+        let away = if distance(from, other) > self.scales.radius(k) {
+            from
+        } else {
+            centre
+        };
+        let heading = (away[1] - other[1]).atan2(away[0] - other[0]);
+        let inside = |p: Vec2| [0, 1].map(|a| p[a].clamp(margin, size[a] - margin));
+        let point = |turn: f64| {
+            let angle = heading + turn * TARGET_TURN;
+            inside([
+                other[0] + apart * angle.cos(),
+                other[1] + apart * angle.sin(),
+            ])
+        };
+        // Where the beam can go at all, by the best map there is (a rough map of merged
+        // sightings understates the reach): targets it can reach first, and when none of
+        // them is far enough, the reachable place farthest from the obstacle.
+        let tracker = &self.trackers[k];
+        let map = tracker.steering_map();
+        let reachable = |p: &Vec2| {
+            map.is_none_or(|m| {
+                m.solve(*p).is_some_and(|u| {
+                    (0..2).all(|a| (tracker.range[a][0]..=tracker.range[a][1]).contains(&u[a]))
+                })
+            })
+        };
+        let turns = (0..=6).flat_map(|i| [f64::from(i), -f64::from(i)]);
+        let far_enough = |p: &Vec2| distance(*p, other) >= apart - 1.0;
+        if let Some(p) = turns
+            .clone()
+            .map(point)
+            .find(|p| far_enough(p) && reachable(p))
+        {
+            return p;
+        }
+        let corners = map.map(|m| {
+            let [[x0, x1], [y0, y1]] = tracker.range;
+            [x0, (x0 + x1) / 2.0, x1]
+                .into_iter()
+                .flat_map(|x| [y0, (y0 + y1) / 2.0, y1].map(|y| inside(m.predict([x, y]))))
+                .collect::<Vec<_>>()
+        });
+        turns
+            .map(point)
+            .filter(|p| reachable(p))
+            .chain(corners.into_iter().flatten())
+            .max_by(|a, b| distance(*a, other).total_cmp(&distance(*b, other)))
+            .unwrap_or(centre)
+    }
+
+    /// What the beam of mirror `k` must not be steered onto, and where that beam was last
+    /// seen (px): the other beam where its map puts it (where it will be parked, when it
+    /// can be); else, when the probed beam was last seen merged (partly, clear of the
+    /// border), the feature that stayed put through the last probe nearest it, or the
+    /// merged detection itself when none did. Features that stayed put are not avoided
+    /// while the probed beam shows clean: stray spots would push the probes about.
+    fn obstacle(&self, k: usize, centre: Vec2) -> Option<(Vec2, Vec2)> {
+        let tracker = &self.trackers[k];
+        let latest = tracker
+            .clean
+            .iter()
+            .chain(&tracker.partial)
+            .max_by_key(|s| s.order)?;
+        let j = 1 - k;
+        if let Some((_, _, landing)) = self.parking(k, centre) {
+            return Some((landing, latest.image));
+        }
+        if !self.refuted[j]
+            && let Some(p) = self.trackers[j].predict(self.mirror(j))
+        {
+            return Some((p, latest.image));
+        }
+        let merged = tracker.partial.iter().any(|s| s.order == latest.order)
+            && self.border_axis(k, latest.image, centre).is_none();
+        if !merged {
+            return None;
+        }
+        let stayed = self
+            .stayed
+            .iter()
+            .min_by(|a, b| distance(**a, latest.image).total_cmp(&distance(**b, latest.image)));
+        Some((stayed.copied().unwrap_or(latest.image), latest.image))
     }
 
     /// Whether `view` shows a beam where beam `k` was last seen (within the match radius).
@@ -556,30 +676,37 @@ impl MichelsonAgent {
     /// probed beam is being steered, goes aside in the same move.
     fn probe(&mut self, k: usize, u: Vec2, centre: Vec2) -> Action {
         self.before = [self.mirror(0), self.mirror(1)];
+        let parking = self.parking(k, centre);
         let u = self.trackers[k].clamp(u);
         self.set_mirror(k, u);
-        let j = 1 - k;
-        let mut parked = None;
-        if let Some(now) = self.trackers[j].predict(self.mirror(j)) {
-            let probed_x = self.trackers[k]
-                .clean
-                .last()
-                .or(self.trackers[k].partial.last())
-                .map_or(centre[0], |s| s.image[0]);
-            let side = if probed_x > centre[0] { -1.0 } else { 1.0 };
-            let width = 2.0 * centre[0];
-            let spot = [centre[0] + side * PARK_SHARE * width, centre[1]];
-            if distance(now, centre) < PARK_WHEN_SHARE * width
-                && let Some(v) = self.trackers[j].command_for(spot, self.mirror(j))
-                && let Some(landing) = self.trackers[j].predict(v)
-                && distance(landing, spot) < self.scales.radius(j)
-            {
-                self.set_mirror(j, v);
-                parked = Some((now, landing));
-            }
-        }
+        let parked = parking.map(|(v, now, landing)| {
+            self.set_mirror(1 - k, v);
+            (now, landing)
+        });
         self.last = Step::Probe { k, parked };
         self.action(false)
+    }
+
+    /// Where the other mirror goes while mirror `k` is probed, when its map is known and
+    /// its beam sits where the probed one is being steered: its command, where its beam is
+    /// now and where it lands (the side of the image away from the probed beam).
+    fn parking(&self, k: usize, centre: Vec2) -> Option<(Vec2, Vec2, Vec2)> {
+        let j = 1 - k;
+        let now = self.trackers[j].predict(self.mirror(j))?;
+        let probed_x = self.trackers[k]
+            .clean
+            .last()
+            .or(self.trackers[k].partial.last())
+            .map_or(centre[0], |s| s.image[0]);
+        let side = if probed_x > centre[0] { -1.0 } else { 1.0 };
+        let width = 2.0 * centre[0];
+        let spot = [centre[0] + side * PARK_SHARE * width, centre[1]];
+        if distance(now, centre) >= PARK_WHEN_SHARE * width {
+            return None;
+        }
+        let v = self.trackers[j].command_for(spot, self.mirror(j))?;
+        let landing = self.trackers[j].predict(v)?;
+        (distance(landing, spot) < self.scales.radius(j)).then_some((v, now, landing))
     }
 
     /// Whether mirror `k`'s beam was never seen and its map is unknown.

@@ -847,8 +847,8 @@ impl Tracker {
         self.clean.is_empty() && self.partial.is_empty() && self.missing.is_empty()
     }
 
-    /// The next command to learn the response while bringing the feature towards the
-    /// centre of an image of size `view`, keeping it `margin` px inside. From a fresh
+    /// The next command to learn the response while bringing the feature towards `target`
+    /// (usually the centre) on an image of size `view`, keeping it `margin` px inside. From a fresh
     /// start, one probe length along the first axis (the feature is usually in view at the
     /// start). Once two clean sightings span one direction, the move along it that they
     /// predict puts the feature nearest the centre, combined with a probe across it, short
@@ -860,28 +860,44 @@ impl Tracker {
         &self,
         start: Vec2,
         view: Vec2,
+        target: Vec2,
         margin: f64,
         prefer: Option<usize>,
     ) -> Vec2 {
         if self.is_fresh() {
             return self.clamp([start[0] + self.probe[0], start[1]]);
         }
-        self.rough_aim(view)
-            .or_else(|| self.probe_across(view, margin))
+        self.rough_aim(target)
+            .or_else(|| self.probe_across(view, target, margin))
             .or_else(|| self.back_the_other_way())
             .unwrap_or_else(|| self.next_probe_preferring(start, prefer))
     }
 
     /// While the clean sightings fit no map, one fitted to the steering sightings (every
     /// sighting until two clean ones span a direction) aims half-way from the latest
-    /// sighting to the centre of an image of size `view`, at most [`ROUGH_REACH`] probe
+    /// sighting to `target`, at most [`ROUGH_REACH`] probe
     /// lengths per axis: a cut beam's centroid moves the right way but less than the beam,
     /// so the rough map overestimates the move it needs. `None` while the sightings span no
     /// two directions.
-    fn rough_aim(&self, view: Vec2) -> Option<Vec2> {
+    fn rough_aim(&self, target: Vec2) -> Option<Vec2> {
         if self.model().is_some() {
             return None;
         }
+        let (rough, latest) = self.rough_map()?;
+        let base = latest.command;
+        let halfway = [0, 1].map(|a| (latest.image[a] + target[a]) / 2.0);
+        let aim = rough.solve(halfway)?;
+        let command = self.clamp([0, 1].map(|a| {
+            let reach = ROUGH_REACH * self.probe[a];
+            aim[a].clamp(base[a] - reach, base[a] + reach)
+        }));
+        (!self.tried_within(command, self.same_command())).then_some(command)
+    }
+
+    /// The map fitted to the steering sightings, through the latest of them (on effective
+    /// commands), and that sighting: `None` while they span no two directions or the map
+    /// says one direction hardly moves the feature.
+    fn rough_map(&self) -> Option<(Affine, Sight)> {
         let sights = self.steering_sightings();
         let loads = self.loads(self.play);
         let points: Vec<(Vec2, Vec2)> = sights
@@ -892,17 +908,18 @@ impl Tracker {
         if rough.balance() < ROUGH_BALANCE {
             return None;
         }
-        let latest = sights.last()?;
-        let base = latest.command;
-        let halfway = [0, 1].map(|a| (latest.image[a] + view[a] / 2.0) / 2.0);
-        let aim = rough
-            .anchored(self.effective(latest, &loads), latest.image)
-            .solve(halfway)?;
-        let command = self.clamp([0, 1].map(|a| {
-            let reach = ROUGH_REACH * self.probe[a];
-            aim[a].clamp(base[a] - reach, base[a] + reach)
-        }));
-        (!self.tried_within(command, self.same_command())).then_some(command)
+        let latest = *sights.last()?;
+        Some((
+            rough.anchored(self.effective(&latest, &loads), latest.image),
+            latest,
+        ))
+    }
+
+    /// The best map there is: the fitted one, else the rough one of every sighting (`None`
+    /// while neither exists).
+    pub fn steering_map(&self) -> Option<Affine> {
+        self.local_model()
+            .or_else(|| self.rough_map().map(|(rough, _)| rough))
     }
 
     /// When the last move lost a feature that showed just before, the same move the other
@@ -943,8 +960,7 @@ impl Tracker {
         all
     }
 
-    fn probe_across(&self, view: Vec2, margin: f64) -> Option<Vec2> {
-        let target = [view[0] / 2.0, view[1] / 2.0];
+    fn probe_across(&self, view: Vec2, target: Vec2, margin: f64) -> Option<Vec2> {
         let sights = self.steering_sightings();
         let last = sights.last()?;
         let (base, seen) = (last.command, last.image);
@@ -1040,16 +1056,18 @@ mod tests {
     fn probes_across_while_centring_along_a_known_direction() {
         let mut tracker = Tracker::new([1500.0, 1500.0], [[-8000.0, 8000.0], [-6000.0, 6000.0]]);
         assert_eq!(
-            tracker.next_probe_towards([0.0, 0.0], [1920.0, 1080.0], 40.0, None),
+            tracker.next_probe_towards([0.0, 0.0], [1920.0, 1080.0], [960.0, 540.0], 40.0, None),
             [1500.0, 0.0]
         );
         // 0.2 px per step along the first axis: 500 px short of the target is 2500 steps.
         tracker.add_clean([0.0, 0.0], [160.0, 540.0]);
         tracker.add_clean([1500.0, 0.0], [460.0, 540.0]);
-        let next = tracker.next_probe_towards([0.0, 0.0], [1920.0, 1080.0], 40.0, None);
+        let next =
+            tracker.next_probe_towards([0.0, 0.0], [1920.0, 1080.0], [960.0, 540.0], 40.0, None);
         assert!(distance(next, [4000.0, 1500.0]) < 1e-6, "{next:?}");
         tracker.add_missing(next);
-        let next = tracker.next_probe_towards([0.0, 0.0], [1920.0, 1080.0], 40.0, None);
+        let next =
+            tracker.next_probe_towards([0.0, 0.0], [1920.0, 1080.0], [960.0, 540.0], 40.0, None);
         assert!(distance(next, [4000.0, -1500.0]) < 1e-6, "{next:?}");
     }
 

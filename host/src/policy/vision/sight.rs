@@ -36,11 +36,21 @@ const MAX_SIZE_RATIO: f64 = 1.6;
 /// A beam closer than this many summed radii to another known beam overlaps it.
 const OVERLAP_RADII: f64 = 1.2;
 
+/// A neighbouring detection this many times brighter than a detection at its peak holds
+/// the light the detection was split from.
+const TOUCH_BRIGHTER: f64 = 1.5;
+
+/// A detection still this share of its peak bright at the border is a sliver of light
+/// that goes on beyond the image.
+const SLIVER_EDGE: f64 = 0.5;
+
 /// What the images taught about this bench.
 #[derive(Clone, Debug, Default)]
 pub struct Scales {
     /// Radii of cleanly seen beams, per feature.
     sizes: [Vec<f64>; 2],
+    /// Their major radii, per feature (when learned from the whole beam).
+    majors: [Vec<f64>; 2],
     /// The median radius of the beams in the views so far.
     typical: Option<f64>,
     /// The shorter image side, px.
@@ -71,6 +81,13 @@ impl Scales {
     /// Learns the size of feature `k` from a clean sighting.
     pub fn learn_size(&mut self, k: usize, radius: f64) {
         self.sizes[k].push(radius);
+    }
+
+    /// Learns the size and the length (major radius) of feature `k` from a clean sighting
+    /// of the whole beam.
+    pub fn learn_shape(&mut self, k: usize, beam: &Beam) {
+        self.learn_size(k, beam.size());
+        self.majors[k].push(beam.radii[0]);
     }
 
     /// Learns the jitter from the displacement of features that stayed between two views.
@@ -146,8 +163,23 @@ fn median(values: &mut [f64]) -> Option<f64> {
     Some(*values.select_nth_unstable_by(mid, f64::total_cmp).1)
 }
 
+/// Whether `beam` (one of the view's detections) is a part of a larger patch of light:
+/// another detection of `view` lies within [`OVERLAP_RADII`] of their summed sizes and is
+/// [`TOUCH_BRIGHTER`] times brighter at its peak (`beam` is a fringe or tail of two merged
+/// beams), or is a sliver the border cuts (at least [`SLIVER_EDGE`] of its peak there: the
+/// other lobe of a two-lobed beam going on beyond the image). Dimmer neighbours are the
+/// beam's own texture; one alike is another beam or a stray spot the detector told apart.
+pub fn touches(beam: &Beam, view: &View) -> bool {
+    view.beams.iter().any(|other| {
+        let d = distance(other.centre, beam.centre);
+        d > 0.0
+            && d < OVERLAP_RADII * (other.size() + beam.size())
+            && (other.peak >= TOUCH_BRIGHTER * beam.peak || other.edge_level >= SLIVER_EDGE)
+    })
+}
+
 /// How `beam`, taken for feature `k`, serves the model: clean when whole, compact, of the
-/// feature's known size and clear of `other` (another known beam's place and radius); a
+/// feature's known size and length and clear of `other` (another known beam's place and radius); a
 /// beam the border cuts is clean at its fitted centre when a Gaussian fits it well and
 /// the centre is not far outside.
 pub fn sight(
@@ -158,7 +190,11 @@ pub fn sight(
     other: Option<(Vec2, f64)>,
 ) -> Sighting {
     let own = scales.known_radius(k);
-    let oversized = own.is_some_and(|r| beam.size() > MAX_SIZE_RATIO * r);
+    // Two beams merged side by side make a detection much longer than either, though its
+    // mean radius may not grow much.
+    let longer = median(&mut scales.majors[k].clone())
+        .is_some_and(|major| beam.radii[0] > MAX_SIZE_RATIO * major);
+    let oversized = longer || own.is_some_and(|r| beam.size() > MAX_SIZE_RATIO * r);
     let radius = own.unwrap_or(beam.size());
     let overlapping =
         other.is_some_and(|(p, r)| distance(beam.centre, p) < OVERLAP_RADII * (r + radius));
