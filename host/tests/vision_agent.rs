@@ -357,3 +357,15 @@ async fn the_vision_agent_aligns_the_michelson_with_beams_that_are_not_gaussian_
         );
     }
 }
+
+#[tokio::test]
+async fn the_vision_agent_checks_again_when_a_refit_moves_where_the_final_command_puts_a_beam() {
+    // Michelson at cross-coupling 0.8, seed 5: a check confirmed both maps, the map refitted
+    // with that check's sightings turned mirror 2's response by about 20 degrees, and the
+    // final command from it, sent with "done", left beam 2 112 px off.
+    let scenario = Knob::CrossCoupling
+        .apply(&ScenarioFile::default(), 0.8)
+        .expect("a valid coupling");
+    let summary = run_on(TaskKind::Michelson, 5, scenario, None).await;
+    assert!(summary.success && summary.declared_done, "{summary:?}");
+}

@@ -604,6 +604,7 @@ impl MichelsonAgent {
             .is_some_and(|last| miss < STALLED_RADII * radius && miss > STALLED_SHARE * last);
         self.last_miss = Some(miss);
         let confirmed = within || stalled;
+        let before_refit = self.trackers.clone();
         let mut relearned = false;
         for (k, seen) in found.iter().enumerate() {
             if let Some(c) = seen {
@@ -615,7 +616,17 @@ impl MichelsonAgent {
             }
         }
         // A new estimate of the lost motion changes every prediction: it is checked first.
-        confirmed && !relearned
+        // So does a refit that moves where the final command puts a beam by more than a
+        // stalled check's miss: the final command comes from the maps as refitted.
+        let centre = view.centre();
+        let agree = (0..2).all(|k| {
+            let allowed = (STALLED_RADII * self.scales.radius(k)).max(self.confirm_px(k));
+            self.trackers[k]
+                .command_for(centre, self.mirror(k))
+                .and_then(|u| before_refit[k].predict(u))
+                .is_none_or(|p| distance(p, centre) < allowed)
+        });
+        confirmed && !relearned && agree
     }
 
     /// Whether beam `k`, found off its prediction by more than the other beam (found
