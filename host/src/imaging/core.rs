@@ -1,5 +1,5 @@
-//! The centre of a beam's bright core: the centroid of the light above a share of the
-//! beam's peak, around the beam. Faint neighbours (a ghost on a bright beam's halo, a stray
+//! A beam's bright core, the light above a share of the beam's peak around the beam: its
+//! centre (the centroid of that light) and its size. Faint neighbours (a ghost on a bright beam's halo, a stray
 //! spot inside its wide window) lie below that level and pull nothing; a saturated core's
 //! flat top is symmetric, so its centre holds.
 
@@ -20,11 +20,7 @@ pub fn core_centre(picture: &Picture, beam: &Beam, share: f64) -> Option<[f64; 2
     let light = picture.light();
     let mut centre = beam.centre;
     for _ in 0..PASSES {
-        let span = |c: f64, side: usize| {
-            let lo = (c - half).floor().max(0.0) as usize;
-            let hi = ((c + half).ceil().max(0.0) as usize).min(side);
-            lo..hi
-        };
+        let span = |c: f64, side: usize| window(c, half, side);
         let (mut s, mut sx, mut sy) = (0.0f64, 0.0f64, 0.0f64);
         for y in span(centre[1], h) {
             let row = &light[y * w..(y + 1) * w];
@@ -46,4 +42,31 @@ pub fn core_centre(picture: &Picture, beam: &Beam, share: f64) -> Option<[f64; 2
         centre = [sx / s + 0.5, sy / s + 0.5];
     }
     Some(centre)
+}
+
+/// The radius of a disc as large as the area where `beam`, within `reach_radii` of its
+/// radii around `centre`, is brighter than `share` of its peak (or saturated), px.
+pub fn core_radius(
+    picture: &Picture,
+    centre: [f64; 2],
+    beam: &Beam,
+    share: f64,
+    reach_radii: f64,
+) -> f64 {
+    let level = (share * beam.peak) as f32;
+    let (w, h) = (picture.width(), picture.height());
+    let reach = reach_radii * beam.size();
+    let light = picture.light();
+    let bright = window(centre[1], reach, h)
+        .flat_map(|y| window(centre[0], reach, w).map(move |x| y * w + x))
+        .filter(|&i| light[i] > level || picture.is_saturated(i))
+        .count();
+    (bright as f64 / std::f64::consts::PI).sqrt()
+}
+
+/// The pixel indices within `half` of `c` along an image side of `side` pixels.
+fn window(c: f64, half: f64, side: usize) -> std::ops::Range<usize> {
+    let lo = (c - half).floor().max(0.0) as usize;
+    let hi = ((c + half).ceil().max(0.0) as usize).min(side);
+    lo..hi
 }

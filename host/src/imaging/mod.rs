@@ -1,6 +1,6 @@
 //! Image analysis shared by calibration, bench scoring and the image-only agent: a frame's
 //! light above its background ([`Picture`]), the beams in it ([`find_beams`]), the centre of
-//! a beam's bright core ([`core_centre`]), and what changed between two frames ([`changes`],
+//! a beam's bright core ([`core_centre`], [`core_radius`]), and what changed between two frames ([`changes`],
 //! [`registered_changes`] when the stationary scene shifted, by as much as a bright beam's
 //! core moved: [`scene_shift`]).
 
@@ -17,7 +17,7 @@ mod tests;
 
 pub use beams::{Beam, find_beams};
 pub use changes::{Changes, changes, registered_changes};
-pub use core::core_centre;
+pub use core::{core_centre, core_radius};
 pub use gaussian::GaussianFit;
 pub use picture::Picture;
 pub use register::scene_shift;

@@ -15,9 +15,11 @@
 use optalign_optics::Frame;
 
 use super::model::{SAME_STEP, Sighting, Tracker, Vec2, distance};
-use super::see::{Seen, View, alike, registered_motion, stationary_pairs};
+use super::see::{Seen, View, alike, motion_in, stationary_pairs};
 use super::sight::{Scales, sight};
-use crate::imaging::{Beam, Picture, core_centre, nearest, registered_changes, scene_shift};
+use crate::imaging::{
+    Beam, Changes, core_centre, core_radius, nearest, registered_changes, scene_shift,
+};
 use crate::task::{Action, CavityLimits};
 
 /// The secondary is feature 0 of the learned scales, the primary feature 1.
@@ -288,7 +290,15 @@ impl CavityAgent {
             .map_or([0.0, 0.0], |b| {
                 scene_shift(&before.picture, &view.picture, b, PRIMARY_CORE_SHARE)
             });
-        let moved = registered_motion(&before, view, shift, self.scales.steady(), expected, None);
+        let changes = registered_changes(&before.picture, &view.picture, shift);
+        let moved = motion_in(
+            &changes,
+            &before,
+            view,
+            self.scales.steady(),
+            expected,
+            None,
+        );
         let radius = self.scales.radius(SECONDARY);
         let hidden = HIDDEN_RADII * primary_radius;
         // The secondary shows outside the primary's footprint, or where the change is clear
@@ -350,7 +360,7 @@ impl CavityAgent {
         };
         let seen_to = appeared
             .map(|s| judge(&s, view))
-            .or_else(|| self.under_core(&before, view, shift, primary));
+            .or_else(|| self.under_core(&changes, primary));
         let seen_from = vanished.map(|s| judge(&s, &before));
         let untried = !self.tracker.tried_within(self.before, SAME_STEP);
         self.tracker.file(self.command, seen_to);
@@ -380,21 +390,15 @@ impl CavityAgent {
     }
 
     /// While the secondary was never seen: light that appeared on the edge of the primary's
-    /// core, with none vanishing there, is the rim of a secondary the core hides (the core
-    /// shows nothing of it; where the primary's scene shifted, by `shift`, light would
-    /// vanish beside it too). A partial sighting there, so that the next probes move it
-    /// out, instead of a miss at the very command that aligns it.
-    fn under_core(
-        &self,
-        before: &View,
-        view: &View,
-        shift: Vec2,
-        primary: Primary,
-    ) -> Option<Sighting> {
+    /// core, with none vanishing there, in the frames' difference `changes` (taken on the
+    /// primary's shifted scene, so light would vanish beside it too had the primary moved),
+    /// is the rim of a secondary the core hides (the core shows nothing of it). A partial
+    /// sighting there, so that the next probes move it out, instead of a miss at the very
+    /// command that aligns it.
+    fn under_core(&self, changes: &Changes, primary: Primary) -> Option<Sighting> {
         if !self.tracker.clean.is_empty() || !self.tracker.partial.is_empty() {
             return None;
         }
-        let changes = registered_changes(&before.picture, &view.picture, shift);
         let on_core = |b: &&Beam| {
             b.size() >= MIN_CHANGE_RADIUS_PX
                 && distance(b.centre, primary.centre) - b.size() <= primary.core
@@ -464,26 +468,13 @@ impl Primary {
         Self {
             centre,
             radius: b.size(),
-            core: core_radius(&view.picture, centre, b, PRIMARY_CORE_SHARE),
+            core: core_radius(
+                &view.picture,
+                centre,
+                b,
+                PRIMARY_CORE_SHARE,
+                CORE_REACH_RADII,
+            ),
         }
     }
-}
-
-/// The radius of a disc as large as the area where `beam`, around `centre`, is brighter
-/// than `share` of its peak, px.
-fn core_radius(picture: &Picture, centre: Vec2, beam: &Beam, share: f64) -> f64 {
-    let level = (share * beam.peak) as f32;
-    let (w, h) = (picture.width(), picture.height());
-    let reach = CORE_REACH_RADII * beam.size();
-    let span = |c: f64, side: usize| {
-        let lo = (c - reach).floor().max(0.0) as usize;
-        let hi = ((c + reach).ceil().max(0.0) as usize).min(side);
-        lo..hi
-    };
-    let light = picture.light();
-    let bright = span(centre[1], h)
-        .flat_map(|y| span(centre[0], w).map(move |x| y * w + x))
-        .filter(|&i| light[i] > level || picture.is_saturated(i))
-        .count();
-    (bright as f64 / std::f64::consts::PI).sqrt()
 }

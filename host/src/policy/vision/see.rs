@@ -8,7 +8,7 @@
 use optalign_optics::Frame;
 
 use super::model::{Vec2, distance};
-use crate::imaging::{Beam, Picture, find_beams, registered_changes};
+use crate::imaging::{Beam, Changes, Picture, find_beams, registered_changes};
 
 /// One frame, measured.
 pub struct View {
@@ -161,6 +161,19 @@ pub fn registered_motion(
     avoid: Option<(Vec2, Vec2)>,
 ) -> Motion {
     let moved = registered_changes(&before.picture, &after.picture, shift);
+    motion_in(&moved, before, after, steady, expected, avoid)
+}
+
+/// [`motion`] read from the views' difference `moved` (what [`registered_changes`] gave
+/// for them), for a caller that looks at the difference itself too.
+pub fn motion_in(
+    moved: &Changes,
+    before: &View,
+    after: &View,
+    steady: f64,
+    expected: Option<Vec2>,
+    avoid: Option<(Vec2, Vec2)>,
+) -> Motion {
     let pairs = stationary_pairs(&before.beams, &after.beams, steady);
     // A change inside a feature that stayed, with a small share of its light, is that
     // feature's jitter or texture shifting, not a beam that moved.

@@ -114,6 +114,11 @@ impl Scales {
         median(&mut self.sizes[k].clone())
     }
 
+    /// The median major radius of feature `k` seen whole, once known.
+    fn known_major(&self, k: usize) -> Option<f64> {
+        median(&mut self.majors[k].clone())
+    }
+
     /// The RMS displacement of stationary features between frames, px, once measured: from
     /// the median displacement (a pair that was not stationary after all does not count),
     /// which for Gaussian jitter in two dimensions is 0.83 times the RMS.
@@ -192,7 +197,8 @@ pub fn sight(
     let own = scales.known_radius(k);
     // Two beams merged side by side make a detection much longer than either, though its
     // mean radius may not grow much.
-    let longer = median(&mut scales.majors[k].clone())
+    let longer = scales
+        .known_major(k)
         .is_some_and(|major| beam.radii[0] > MAX_SIZE_RATIO * major);
     let oversized = longer || own.is_some_and(|r| beam.size() > MAX_SIZE_RATIO * r);
     let radius = own.unwrap_or(beam.size());
