@@ -235,25 +235,36 @@ impl Grid {
                 }
             })
             .collect();
-        let mut smooth = vec![0f32; bw * bh];
-        let mut smooth_noise = vec![0f32; bw * bh];
         // A smoothed block averages (2 reach + 1)² blocks of BLOCK² pixels (fewer at the
         // border).
         let side = ((2 * reach + 1) * BLOCK) as f32;
-        for by in 0..bh {
-            for bx in 0..bw {
-                let (mut sum, mut variance, mut n) = (0f32, 0f32, 0f32);
-                for ny in by.saturating_sub(reach)..(by + reach + 1).min(bh) {
-                    for nx in bx.saturating_sub(reach)..(bx + reach + 1).min(bw) {
-                        sum += means[ny * bw + nx];
-                        variance += pixel_noise[ny * bw + nx].powi(2);
-                        n += 1.0;
+        let (smooth, smooth_noise) = if reach == 1 {
+            let mut smooth = vec![0f32; bw * bh];
+            let mut smooth_noise = vec![0f32; bw * bh];
+            for by in 0..bh {
+                for bx in 0..bw {
+                    let (mut sum, mut variance, mut n) = (0f32, 0f32, 0f32);
+                    for ny in by.saturating_sub(1)..(by + 2).min(bh) {
+                        for nx in bx.saturating_sub(1)..(bx + 2).min(bw) {
+                            sum += means[ny * bw + nx];
+                            variance += pixel_noise[ny * bw + nx].powi(2);
+                            n += 1.0;
+                        }
                     }
+                    smooth[by * bw + bx] = sum / n;
+                    smooth_noise[by * bw + bx] = (variance / n).sqrt() / side;
                 }
-                smooth[by * bw + bx] = sum / n;
-                smooth_noise[by * bw + bx] = (variance / n).sqrt() / side;
             }
-        }
+            (smooth, smooth_noise)
+        } else {
+            // Wide averages by running sums: their cost does not grow with their width.
+            let variances: Vec<f32> = pixel_noise.iter().map(|v| v * v).collect();
+            let smooth_noise = box_means(&variances, bw, bh, reach)
+                .into_iter()
+                .map(|v| v.sqrt() / side)
+                .collect();
+            (box_means(&means, bw, bh, reach), smooth_noise)
+        };
         Self {
             bw,
             bh,
@@ -466,6 +477,33 @@ impl Grid {
         }
         owner
     }
+}
+
+/// The mean of `values` (a `bw` x `bh` grid, row-major) over the cells within `reach` of
+/// each cell (fewer at the border): running sums along the rows, then along the columns
+/// (the window's cells are the product of its row and column spans).
+fn box_means(values: &[f32], bw: usize, bh: usize, reach: usize) -> Vec<f32> {
+    // Means along a line of `len` cells `stride` apart, starting at `start`.
+    let line = |source: &[f32], out: &mut [f32], start: usize, len: usize, stride: usize| {
+        let mut prefix = Vec::with_capacity(len + 1);
+        prefix.push(0f64);
+        for i in 0..len {
+            prefix.push(prefix[i] + f64::from(source[start + i * stride]));
+        }
+        for i in 0..len {
+            let (lo, hi) = (i.saturating_sub(reach), (i + reach + 1).min(len));
+            out[start + i * stride] = ((prefix[hi] - prefix[lo]) / (hi - lo) as f64) as f32;
+        }
+    };
+    let mut rows = vec![0f32; values.len()];
+    for y in 0..bh {
+        line(values, &mut rows, y * bw, bw, 1);
+    }
+    let mut out = vec![0f32; values.len()];
+    for x in 0..bw {
+        line(&rows, &mut out, x, bh, bw);
+    }
+    out
 }
 
 /// Groups regions that belong to one beam: cores close relative to their distance, peaks
