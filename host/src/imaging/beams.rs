@@ -6,6 +6,8 @@
 //! read noise propagated through the centroid), whether the border cuts it, whether it is
 //! saturated, and whether it is a compact spot or a speckle cloud; a beam cut by the border
 //! also carries a Gaussian fit, whose centre holds for a Gaussian-like beam.
+//! [`find_faint_beams`] looks for faint broad beams on wider averages, against the noise
+//! the pixels carry place by place, and measures them on the averaged blocks.
 
 use std::collections::VecDeque;
 
@@ -15,8 +17,8 @@ use super::picture::Picture;
 /// Pixels per side of the blocks the picture is reduced to for finding regions.
 const BLOCK: usize = 4;
 
-/// A block (averaged with its eight neighbours) holds light when it exceeds this many
-/// noise deviations of such an average.
+/// A block (averaged with its neighbours) holds light when it exceeds this many noise
+/// deviations of such an average.
 const THRESHOLD_NOISES: f64 = 4.5;
 
 /// Regions whose light is below this share of the strongest region's are dropped.
@@ -116,9 +118,33 @@ impl Beam {
     }
 }
 
-/// Beams in `picture`, strongest first.
+/// Beams in `picture`, strongest first, found on blocks averaged with their eight
+/// neighbours (12 px across: compact beams stay apart).
 pub fn find_beams(picture: &Picture) -> Vec<Beam> {
-    let grid = Grid::new(picture);
+    beams_in(picture, 1)
+}
+
+/// Faint broad beams of up to about `radius` px in `picture` (where [`find_beams`] finds
+/// none), strongest first: found on the narrowest of wider and wider block averages (twice
+/// as wide each time, up to about `radius` across) that shows any, against the noise the
+/// picture's pixels carry place by place (its noise map). A faint broad beam stands out of
+/// heavy noise only on an average of about its own size (it takes in more of its light and
+/// less of the noise per block); finer ones keep nearby beams apart.
+pub fn find_faint_beams(picture: &Picture, radius: f64) -> Vec<Beam> {
+    let widest = (radius / (2 * BLOCK) as f64).round().max(2.0) as usize;
+    let mut reach = 2;
+    loop {
+        let beams = beams_in(picture, reach);
+        if !beams.is_empty() || reach >= widest {
+            return beams;
+        }
+        reach = (2 * reach).min(widest);
+    }
+}
+
+/// Beams in `picture` found on blocks averaged with those within `reach` of them.
+fn beams_in(picture: &Picture, reach: usize) -> Vec<Beam> {
+    let grid = Grid::new(picture, reach);
     let regions = grid.regions();
     let groups = join_regions(&grid, &regions);
     let owner = grid.partition(&regions, &groups);
@@ -146,8 +172,12 @@ struct Grid {
     means: Vec<f32>,
     /// Block means averaged with their neighbours: what regions are found on.
     smooth: Vec<f32>,
-    /// Noise of one pixel.
-    noise: f64,
+    /// How far one pixel of each block scatters.
+    pixel_noise: Vec<f32>,
+    /// How far each smoothed block scatters.
+    smooth_noise: Vec<f32>,
+    /// Blocks averaged either side of a block in `smooth`.
+    reach: usize,
 }
 
 /// The blocks around one block, without allocating.
@@ -172,7 +202,8 @@ struct Region {
 }
 
 impl Grid {
-    fn new(picture: &Picture) -> Self {
+    /// The picture's blocks, each averaged with the blocks within `reach` of it.
+    fn new(picture: &Picture, reach: usize) -> Self {
         let (width, height) = (picture.width(), picture.height());
         let (bw, bh) = (width.div_ceil(BLOCK), height.div_ceil(BLOCK));
         let mut sums = vec![0f64; bw * bh];
@@ -189,25 +220,59 @@ impl Grid {
             .zip(&counts)
             .map(|(s, &n)| (s / f64::from(n.max(1))) as f32)
             .collect();
-        let mut smooth = vec![0f32; bw * bh];
-        for by in 0..bh {
-            for bx in 0..bw {
-                let (mut sum, mut n) = (0f32, 0f32);
-                for ny in by.saturating_sub(1)..(by + 2).min(bh) {
-                    for nx in bx.saturating_sub(1)..(bx + 2).min(bw) {
-                        sum += means[ny * bw + nx];
-                        n += 1.0;
-                    }
+        // On the finest average a beam is measured on its pixels' moments in a window
+        // that starts from its region; the frame's one read noise keeps those regions as
+        // they were (lower thresholds in the dark parts of heavy clipped noise would widen
+        // them by noisy rims, and the window with them). Broad averages, whose beams are
+        // measured on the averaged blocks, take the noise the pixels carry place by place.
+        let map = picture.noise_map();
+        let pixel_noise: Vec<f32> = (0..bw * bh)
+            .map(|b| {
+                if reach > 1 {
+                    map.at((b % bw) * BLOCK + BLOCK / 2, (b / bw) * BLOCK + BLOCK / 2)
+                } else {
+                    picture.noise() as f32
                 }
-                smooth[by * bw + bx] = sum / n;
+            })
+            .collect();
+        // A smoothed block averages (2 reach + 1)² blocks of BLOCK² pixels (fewer at the
+        // border).
+        let side = ((2 * reach + 1) * BLOCK) as f32;
+        let (smooth, smooth_noise) = if reach == 1 {
+            let mut smooth = vec![0f32; bw * bh];
+            let mut smooth_noise = vec![0f32; bw * bh];
+            for by in 0..bh {
+                for bx in 0..bw {
+                    let (mut sum, mut variance, mut n) = (0f32, 0f32, 0f32);
+                    for ny in by.saturating_sub(1)..(by + 2).min(bh) {
+                        for nx in bx.saturating_sub(1)..(bx + 2).min(bw) {
+                            sum += means[ny * bw + nx];
+                            variance += pixel_noise[ny * bw + nx].powi(2);
+                            n += 1.0;
+                        }
+                    }
+                    smooth[by * bw + bx] = sum / n;
+                    smooth_noise[by * bw + bx] = (variance / n).sqrt() / side;
+                }
             }
-        }
+            (smooth, smooth_noise)
+        } else {
+            // Wide averages by running sums: their cost does not grow with their width.
+            let variances: Vec<f32> = pixel_noise.iter().map(|v| v * v).collect();
+            let smooth_noise = box_means(&variances, bw, bh, reach)
+                .into_iter()
+                .map(|v| v.sqrt() / side)
+                .collect();
+            (box_means(&means, bw, bh, reach), smooth_noise)
+        };
         Self {
             bw,
             bh,
             means,
             smooth,
-            noise: picture.noise(),
+            pixel_noise,
+            smooth_noise,
+            reach,
         }
     }
 
@@ -236,18 +301,17 @@ impl Grid {
         out
     }
 
-    /// The noise of a smoothed block, which averages 9 * BLOCK² pixels.
-    fn smooth_noise(&self) -> f32 {
-        (self.noise / (3.0 * BLOCK as f64)) as f32
+    /// Whether smoothed block `b` stands out of its noise: light there.
+    fn bright(&self, b: usize) -> bool {
+        self.smooth[b] > THRESHOLD_NOISES as f32 * self.smooth_noise[b]
     }
 
     /// 8-connected regions of bright smoothed blocks, with enough light to be real.
     fn regions(&self) -> Vec<Region> {
-        let threshold = THRESHOLD_NOISES as f32 * self.smooth_noise();
         let mut seen = vec![false; self.bw * self.bh];
         let mut regions = Vec::new();
         for start in 0..seen.len() {
-            if seen[start] || self.smooth[start] <= threshold {
+            if seen[start] || !self.bright(start) {
                 continue;
             }
             seen[start] = true;
@@ -257,7 +321,7 @@ impl Grid {
                 let block = blocks[next];
                 next += 1;
                 for n in self.neighbours(block).iter() {
-                    if !seen[n] && self.smooth[n] > threshold {
+                    if !seen[n] && self.bright(n) {
                         seen[n] = true;
                         blocks.push(n);
                     }
@@ -270,8 +334,13 @@ impl Grid {
                 .iter()
                 .map(|&b| f64::from(self.means[b]) * (BLOCK * BLOCK) as f64)
                 .sum();
-            let pixels = (blocks.len() * BLOCK * BLOCK) as f64;
-            if light < MIN_SIGNIFICANCE * self.noise * pixels.sqrt() {
+            // The noise summed over the region's pixels.
+            let noise = blocks
+                .iter()
+                .map(|&b| f64::from(self.pixel_noise[b]).powi(2) * (BLOCK * BLOCK) as f64)
+                .sum::<f64>()
+                .sqrt();
+            if light < MIN_SIGNIFICANCE * noise {
                 continue;
             }
             regions.extend(self.split(blocks).into_iter().map(|b| self.describe(b)));
@@ -293,7 +362,6 @@ impl Grid {
             .map(|&b| self.smooth[b])
             .fold(f32::MIN, f32::max);
         let level = CORE_SHARE * peak;
-        let prominent = level + CORE_PROMINENCE_NOISES * self.smooth_noise();
         let mut label = vec![OUTSIDE; self.bw * self.bh];
         for &b in &blocks {
             label[b] = UNCLAIMED;
@@ -319,9 +387,11 @@ impl Grid {
             }
             let core_peak = core
                 .iter()
-                .map(|&b| self.smooth[b])
-                .fold(f32::MIN, f32::max);
-            if core.len() < 2 || core_peak < prominent {
+                .copied()
+                .max_by(|&a, &b| self.smooth[a].total_cmp(&self.smooth[b]))
+                .unwrap_or(start);
+            let prominent = level + CORE_PROMINENCE_NOISES * self.smooth_noise[core_peak];
+            if core.len() < 2 || self.smooth[core_peak] < prominent {
                 for &b in &core {
                     label[b] = FAINT_CORE;
                 }
@@ -407,6 +477,33 @@ impl Grid {
         }
         owner
     }
+}
+
+/// The mean of `values` (a `bw` x `bh` grid, row-major) over the cells within `reach` of
+/// each cell (fewer at the border): running sums along the rows, then along the columns
+/// (the window's cells are the product of its row and column spans).
+fn box_means(values: &[f32], bw: usize, bh: usize, reach: usize) -> Vec<f32> {
+    // Means along a line of `len` cells `stride` apart, starting at `start`.
+    let line = |source: &[f32], out: &mut [f32], start: usize, len: usize, stride: usize| {
+        let mut prefix = Vec::with_capacity(len + 1);
+        prefix.push(0f64);
+        for i in 0..len {
+            prefix.push(prefix[i] + f64::from(source[start + i * stride]));
+        }
+        for i in 0..len {
+            let (lo, hi) = (i.saturating_sub(reach), (i + reach + 1).min(len));
+            out[start + i * stride] = ((prefix[hi] - prefix[lo]) / (hi - lo) as f64) as f32;
+        }
+    };
+    let mut rows = vec![0f32; values.len()];
+    for y in 0..bh {
+        line(values, &mut rows, y * bw, bw, 1);
+    }
+    let mut out = vec![0f32; values.len()];
+    for x in 0..bw {
+        line(&rows, &mut out, x, bh, bw);
+    }
+    out
 }
 
 /// Groups regions that belong to one beam: cores close relative to their distance, peaks
@@ -536,7 +633,126 @@ fn measure(
     blocks: &[usize],
     parts: usize,
 ) -> Option<Beam> {
-    let id_u32 = id as u32;
+    let footprint = if grid.reach > 1 {
+        faint_footprint(grid, blocks)?
+    } else {
+        window_footprint(picture, grid, owner, id as u32, blocks)?
+    };
+    let Footprint {
+        centre,
+        radii,
+        angle,
+        signal,
+        spread,
+    } = footprint;
+    // var(cx) = noise² Σ (x - cx)² / S².
+    let uncertainty = picture.noise() * spread.sqrt() / signal;
+    let (w, h) = (picture.width(), picture.height());
+    let peak = blocks
+        .iter()
+        .map(|&b| f64::from(grid.means[b]))
+        .fold(f64::MIN, f64::max);
+    // Cut by the border: it is still bright there (a faint rim touching it moves the
+    // centroid by nothing worth a flag). Smoothed blocks on both sides of the ratio: the
+    // brightest raw block of a speckled beam is one bright grain, far above the beam's
+    // level, which would make a beam centred beyond the border look whole.
+    let smooth_peak = blocks
+        .iter()
+        .map(|&b| f64::from(grid.smooth[b]))
+        .fold(f64::MIN, f64::max);
+    let at_border = blocks
+        .iter()
+        .filter(|&&b| {
+            let (bx, by) = (b % grid.bw, b / grid.bw);
+            bx == 0 || by == 0 || bx + 1 == grid.bw || by + 1 == grid.bh
+        })
+        .map(|&b| f64::from(grid.smooth[b]))
+        .fold(0.0, f64::max);
+    let clipped = at_border > CLIPPED_SHARE * smooth_peak;
+    let saturated_pixels = blocks
+        .iter()
+        .flat_map(|&b| block_pixels(b, grid, w, h))
+        .filter(|&i| picture.is_saturated(i))
+        .count();
+    let beam = Beam {
+        centre,
+        uncertainty,
+        radii,
+        angle_deg: angle.to_degrees(),
+        signal,
+        peak,
+        saturated: saturated_pixels >= SATURATED_PIXELS,
+        clipped,
+        edge_level: (at_border / smooth_peak.max(1e-9)).clamp(0.0, 1.0),
+        localised: roughness(picture, grid, blocks, peak) < MAX_SPOT_ROUGHNESS,
+        parts,
+        fit: None,
+    };
+    let fit = clipped
+        .then(|| fit_gaussian(picture, grid, blocks, &beam))
+        .flatten();
+    Some(Beam { fit, ..beam })
+}
+
+/// The footprint of a beam found on a broad average (a faint one: finer averages showed
+/// nothing), whose pixels' moments over a window would be mostly noise (they take in
+/// every pixel's noise times its squared distance): a round Gaussian fitted to the
+/// averaged blocks of its region (all stand out of their noise), its radius freed of the
+/// average's own width (a box `L` wide adds `L²/12` to a spot's variance along each axis;
+/// the box keeps its light). `None` when they do not fall off like a spot.
+fn faint_footprint(grid: &Grid, blocks: &[usize]) -> Option<Footprint> {
+    let (mut s, mut sx, mut sy) = (0.0, 0.0, 0.0);
+    for &b in blocks {
+        let (v, c) = (f64::from(grid.smooth[b]), grid.centre_of(b));
+        s += v;
+        sx += v * c[0];
+        sy += v * c[1];
+    }
+    if s <= 0.0 {
+        return None;
+    }
+    let width = ((2 * grid.reach + 1) * BLOCK) as f64;
+    let mut fitter = GaussianFitter::new([sx / s, sy / s], width);
+    for &b in blocks {
+        let c = grid.centre_of(b);
+        fitter.add(c[0], c[1], f64::from(grid.smooth[b]));
+    }
+    let fit = fitter.finish(0.0)?;
+    let radius = (fit.radius.powi(2) - width * width / 3.0)
+        .max(0.0)
+        .sqrt()
+        .max(BLOCK as f64);
+    let half = WINDOW_RADII * radius;
+    Some(Footprint {
+        centre: fit.centre,
+        radii: [radius, radius],
+        angle: 0.0,
+        signal: fit.peak * std::f64::consts::PI * fit.radius.powi(2) / 2.0,
+        spread: (2.0 * half).powi(2) * 2.0 * half * half / 3.0,
+    })
+}
+
+/// Where a beam is, how large and how bright, and the spread of its measuring window.
+struct Footprint {
+    centre: [f64; 2],
+    /// 1/e² radii along the principal axes (major, minor), px.
+    radii: [f64; 2],
+    /// Direction of the major axis, radians from +x towards +y.
+    angle: f64,
+    signal: f64,
+    /// Σ (x - cx)² over the window's pixels, for the centre's uncertainty.
+    spread: f64,
+}
+
+/// The footprint of beam `id` (its region blocks `blocks`) from its pixels' moments in a
+/// window of [`WINDOW_RADII`] second-moment radii, iterated until it settles.
+fn window_footprint(
+    picture: &Picture,
+    grid: &Grid,
+    owner: &[u32],
+    id_u32: u32,
+    blocks: &[usize],
+) -> Option<Footprint> {
     // Start from the blocks' own moments.
     let (mut s, mut sx, mut sy) = (0.0, 0.0, 0.0);
     for &b in blocks {
@@ -589,55 +805,13 @@ fn measure(
     let cyy = (m.syy / m.s - mean[1].powi(2)).max(0.0);
     let cxy = m.sxy / m.s - mean[0] * mean[1];
     let (major, minor, angle) = principal(cxx, cyy, cxy);
-    let noise = picture.noise();
-    // var(cx) = noise² Σ (x - cx)² / S²: Σ (x - cx)² over the window's pixels.
-    let spread = m.n * (half[0].powi(2) + half[1].powi(2)) / 3.0;
-    let uncertainty = noise * spread.sqrt() / m.s;
-    let (w, h) = (picture.width(), picture.height());
-    let peak = blocks
-        .iter()
-        .map(|&b| f64::from(grid.means[b]))
-        .fold(f64::MIN, f64::max);
-    // Cut by the border: it is still bright there (a faint rim touching it moves the
-    // centroid by nothing worth a flag). Smoothed blocks on both sides of the ratio: the
-    // brightest raw block of a speckled beam is one bright grain, far above the beam's
-    // level, which would make a beam centred beyond the border look whole.
-    let smooth_peak = blocks
-        .iter()
-        .map(|&b| f64::from(grid.smooth[b]))
-        .fold(f64::MIN, f64::max);
-    let at_border = blocks
-        .iter()
-        .filter(|&&b| {
-            let (bx, by) = (b % grid.bw, b / grid.bw);
-            bx == 0 || by == 0 || bx + 1 == grid.bw || by + 1 == grid.bh
-        })
-        .map(|&b| f64::from(grid.smooth[b]))
-        .fold(0.0, f64::max);
-    let clipped = at_border > CLIPPED_SHARE * smooth_peak;
-    let saturated_pixels = blocks
-        .iter()
-        .flat_map(|&b| block_pixels(b, grid, w, h))
-        .filter(|&i| picture.is_saturated(i))
-        .count();
-    let beam = Beam {
+    Some(Footprint {
         centre,
-        uncertainty,
         radii: [2.0 * major.sqrt(), 2.0 * minor.sqrt()],
-        angle_deg: angle.to_degrees(),
+        angle,
         signal: m.s,
-        peak,
-        saturated: saturated_pixels >= SATURATED_PIXELS,
-        clipped,
-        edge_level: (at_border / smooth_peak.max(1e-9)).clamp(0.0, 1.0),
-        localised: roughness(picture, grid, blocks, peak) < MAX_SPOT_ROUGHNESS,
-        parts,
-        fit: None,
-    };
-    let fit = clipped
-        .then(|| fit_gaussian(picture, grid, blocks, &beam))
-        .flatten();
-    Some(Beam { fit, ..beam })
+        spread: m.n * (half[0].powi(2) + half[1].powi(2)) / 3.0,
+    })
 }
 
 /// Eigen-decomposition of a 2 x 2 covariance: (major, minor, angle of the major axis).

@@ -6,8 +6,11 @@
 //! scene shifted between the frames (pointing jitter of a beam that carries its artefacts
 //! with it), [`registered_changes`] moves the earlier picture by that shift first, so the
 //! scene's edges cancel too instead of leaving residue as bright as a faint beam.
+//! [`registered_changes_sized`] looks for a faint broad beam where the finest average
+//! shows nothing, on the difference without its own level (the two frames' backgrounds
+//! are measured apart).
 
-use super::beams::{Beam, find_beams};
+use super::beams::{Beam, find_beams, find_faint_beams};
 use super::picture::Picture;
 
 /// Pixels brighter than this many noise deviations in both pictures set the gain ...
@@ -40,6 +43,29 @@ pub fn changes(before: &Picture, after: &Picture) -> Changes {
 /// Where light appeared is in `after`'s coordinates, where it vanished in `before`'s.
 /// Empty when the sizes differ.
 pub fn registered_changes(before: &Picture, after: &Picture, shift: [f64; 2]) -> Changes {
+    changes_found(before, after, shift, None)
+}
+
+/// [`registered_changes`] of a beam of about `radius` px: on a side of the difference
+/// where the finest average shows nothing, a faint broad beam is looked for on wider ones
+/// (see [`find_faint_beams`]), once the difference's own level is taken out.
+pub fn registered_changes_sized(
+    before: &Picture,
+    after: &Picture,
+    shift: [f64; 2],
+    radius: f64,
+) -> Changes {
+    changes_found(before, after, shift, Some(radius))
+}
+
+/// The changes from `before` to `after` (the scene moved by `shift`); with `faint`, a beam
+/// of that radius is looked for on wider averages where the finest shows nothing.
+fn changes_found(
+    before: &Picture,
+    after: &Picture,
+    shift: [f64; 2],
+    faint: Option<f64>,
+) -> Changes {
     if before.width() != after.width() || before.height() != after.height() {
         return Changes::default();
     }
@@ -59,9 +85,25 @@ pub fn registered_changes(before: &Picture, after: &Picture, shift: [f64; 2]) ->
         })
         .collect();
     let noise = after.noise().hypot(gain * before.noise());
+    let noise_map = after.noise_map().of_difference(before.noise_map(), gain);
+    let faint = faint.map(|radius| (radius, without_level(&difference, w, h)));
     let side = |sign: f32| {
-        let light = one_side(&difference, w, h, sign, noise);
-        find_beams(&Picture::from_light(w, h, light, noise))
+        let picture = |d: &[f32]| {
+            Picture::from_light(
+                w,
+                h,
+                one_side(d, w, h, sign, noise),
+                noise,
+                noise_map.clone(),
+            )
+        };
+        let beams = find_beams(&picture(&difference));
+        match &faint {
+            Some((radius, levelled)) if beams.is_empty() => {
+                find_faint_beams(&picture(levelled), *radius)
+            }
+            _ => beams,
+        }
     };
     let back = [-shift[0], -shift[1]];
     Changes {
@@ -128,6 +170,85 @@ impl Shifted {
         }
         out
     }
+}
+
+/// Side of the cells whose mean changes the level of a difference is fitted to, px.
+const LEVEL_CELL: usize = 64;
+
+/// A cell whose mean change lies this many robust deviations off the fitted level holds
+/// a change of its own.
+const LEVEL_OUTLIER: f64 = 3.0;
+
+/// A frames' difference without the plane its cells lie on: each frame's background is
+/// measured on its own, and where black clips heavy noise two frames' levels (and slopes)
+/// differ by about a gray level, a change spread over the whole frame that an average as
+/// wide as a broad beam shows. Cells holding a moved beam are left out of the fit as
+/// outliers.
+fn without_level(difference: &[f32], w: usize, h: usize) -> Vec<f32> {
+    let mut difference = difference.to_vec();
+    let (cw, ch) = (w.div_ceil(LEVEL_CELL), h.div_ceil(LEVEL_CELL));
+    let mut sums = vec![0f64; cw * ch];
+    let mut counts = vec![0f64; cw * ch];
+    for (y, row) in difference.chunks_exact(w).enumerate() {
+        let base = (y / LEVEL_CELL) * cw;
+        for (c, chunk) in row.chunks(LEVEL_CELL).enumerate() {
+            sums[base + c] += chunk.iter().map(|&v| f64::from(v)).sum::<f64>();
+            counts[base + c] += chunk.len() as f64;
+        }
+    }
+    let cells: Vec<([f64; 3], f64)> = (0..cw * ch)
+        .map(|c| {
+            let centre = |i: usize, side: usize| {
+                ((i * LEVEL_CELL) as f64 + (((i + 1) * LEVEL_CELL).min(side) as f64)) / 2.0
+            };
+            (
+                [1.0, centre(c % cw, w), centre(c / cw, h)],
+                sums[c] / counts[c].max(1.0),
+            )
+        })
+        .collect();
+    let mut keep = vec![true; cells.len()];
+    let mut plane = [0.0; 3];
+    for _ in 0..5 {
+        let mut normal = nalgebra::Matrix3::<f64>::zeros();
+        let mut rhs = nalgebra::Vector3::<f64>::zeros();
+        for ((row, level), _) in cells.iter().zip(&keep).filter(|(_, k)| **k) {
+            let row = nalgebra::Vector3::from(*row);
+            normal += row * row.transpose();
+            rhs += row * *level;
+        }
+        let Some(inverse) = normal.try_inverse() else {
+            return difference;
+        };
+        let solution = inverse * rhs;
+        plane = [solution[0], solution[1], solution[2]];
+        let residual = |(row, level): &([f64; 3], f64)| {
+            (level - plane[0] - plane[1] * row[1] - plane[2] * row[2]).abs()
+        };
+        let mut kept: Vec<f64> = cells
+            .iter()
+            .zip(&keep)
+            .filter(|(_, k)| **k)
+            .map(|(c, _)| residual(c))
+            .collect();
+        let mid = kept.len() / 2;
+        let spread = 1.4826 * *kept.select_nth_unstable_by(mid, f64::total_cmp).1;
+        let next: Vec<bool> = cells
+            .iter()
+            .map(|c| residual(c) <= LEVEL_OUTLIER * spread)
+            .collect();
+        if next == keep || next.iter().filter(|k| **k).count() < 3 {
+            break;
+        }
+        keep = next;
+    }
+    for (y, row) in difference.chunks_exact_mut(w).enumerate() {
+        let start = plane[0] + plane[2] * (y as f64 + 0.5);
+        for (x, v) in row.iter_mut().enumerate() {
+            *v -= (start + plane[1] * (x as f64 + 0.5)) as f32;
+        }
+    }
+    difference
 }
 
 /// Side of the blocks that decide which sign of change a place shows.

@@ -8,6 +8,7 @@ mod beams;
 mod changes;
 mod core;
 mod gaussian;
+mod noise;
 mod picture;
 mod register;
 #[cfg(test)]
@@ -16,9 +17,10 @@ pub(crate) mod synthetic;
 mod tests;
 
 pub use beams::{Beam, find_beams};
-pub use changes::{Changes, changes, registered_changes};
+pub use changes::{Changes, changes, registered_changes, registered_changes_sized};
 pub use core::{core_centre, core_radius};
 pub use gaussian::GaussianFit;
+pub use noise::NoiseMap;
 pub use picture::Picture;
 pub use register::scene_shift;
 

@@ -7,8 +7,12 @@
 //! that a bright spot smears through the whole frame is measured in the top and bottom
 //! bands and removed, and hot pixels (one pixel far brighter than all its neighbours) are
 //! replaced by their neighbours' mean. Saturated pixels are remembered: they carry no shape.
+//! Where black clips the noise, how far the pixels scatter varies with the light: a
+//! [`NoiseMap`] says it place by place.
 
 use optalign_optics::Frame;
+
+use super::noise::{NoiseMap, clipped_normal_mean};
 
 /// Cells per short image side for the background fit (at least 16 px each).
 const CELLS_PER_SIDE: usize = 16;
@@ -56,6 +60,9 @@ pub struct Picture {
     saturated: Vec<bool>,
     /// Read noise, gray levels (standard deviation).
     noise: f64,
+    /// How far one pixel's value scatters, place by place (less than the read noise
+    /// where black clips it).
+    noise_map: NoiseMap,
     /// The background level at the image centre, gray levels.
     background: f64,
 }
@@ -95,12 +102,18 @@ impl Picture {
             .iter()
             .map(|&p| Some(p) == saturation && p > 0)
             .collect();
+        let noise_map = if plane.clipped {
+            NoiseMap::clipped(raw, width, height, noise)
+        } else {
+            NoiseMap::uniform(width, height, noise)
+        };
         Self {
             width,
             height,
             light,
             saturated,
             noise,
+            noise_map,
             background: plane.at(width / 2, height / 2),
         }
     }
@@ -133,20 +146,32 @@ impl Picture {
         self.noise
     }
 
+    /// How far one pixel's value scatters, place by place.
+    pub fn noise_map(&self) -> &NoiseMap {
+        &self.noise_map
+    }
+
     /// The background level at the image centre, gray levels.
     pub fn background(&self) -> f64 {
         self.background
     }
 
     /// The same measurement on another light image of this size (a frame difference):
-    /// nothing saturated, noise `noise`.
-    pub(crate) fn from_light(width: usize, height: usize, light: Vec<f32>, noise: f64) -> Self {
+    /// nothing saturated, noise `noise`, scattering as `noise_map` says.
+    pub(crate) fn from_light(
+        width: usize,
+        height: usize,
+        light: Vec<f32>,
+        noise: f64,
+        noise_map: NoiseMap,
+    ) -> Self {
         Self {
             width,
             height,
             saturated: vec![false; light.len()],
             light,
             noise,
+            noise_map,
             background: 0.0,
         }
     }
@@ -310,25 +335,6 @@ const NORMAL_POINTS: [(f64, f64); 5] = [
     (1.5, 0.9332),
     (2.0, 0.9772),
 ];
-
-/// The mean of `max(0, t + Z)` for a standard normal `Z`: `t Φ(t) + φ(t)`, what a pixel
-/// whose level is `t` noise deviations above black reads on average.
-fn clipped_normal_mean(t: f64) -> f64 {
-    // Φ by the complementary error function's Abramowitz-Stegun 7.1.26 fit (error < 1.5e-7).
-    let phi = (-0.5 * t * t).exp() / (2.0 * std::f64::consts::PI).sqrt();
-    let x = t.abs() / std::f64::consts::SQRT_2;
-    let k = 1.0 / (1.0 + 0.3275911 * x);
-    let erfc = k
-        * (0.254829592
-            + k * (-0.284496736 + k * (1.421413741 + k * (-1.453152027 + k * 1.061405429))))
-        * (-x * x).exp();
-    let cdf = if t >= 0.0 {
-        1.0 - 0.5 * erfc
-    } else {
-        0.5 * erfc
-    };
-    t * cdf + phi
-}
 
 /// How many bytes equal `value`.
 fn bytecount(bytes: &[u8], value: u8) -> usize {

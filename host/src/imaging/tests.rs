@@ -3,7 +3,9 @@
 //! stray light, a sloping background, a smear column and hot pixels around them.
 
 use super::synthetic::Scene;
-use super::{Beam, Picture, changes, find_beams, registered_changes, scene_shift};
+use super::{
+    Beam, Picture, changes, find_beams, registered_changes, registered_changes_sized, scene_shift,
+};
 
 const W: usize = 640;
 const H: usize = 480;
@@ -365,4 +367,48 @@ fn a_faint_spot_moving_on_the_core_edge_is_not_taken_for_a_move_of_the_scene() {
     let after = Picture::new(&jittered_bench(primary, [320.0, 270.0], 34).frame());
     let primary_beam = *super::nearest(&find_beams(&before), primary).unwrap();
     assert_eq!(scene_shift(&before, &after, &primary_beam, 0.5), [0.0, 0.0]);
+}
+
+#[test]
+fn a_dim_broad_beam_moving_in_heavy_clipped_noise_is_found_and_the_halo_stays_quiet() {
+    // A saturated beam with a broad halo stays put; a dim beam (peak 40 over a dark level
+    // of 6, noise 60: half the dark pixels read 0) moves across the halo's edge. At the
+    // detector's finest scale it does not stand out of the noise even in the frames'
+    // difference; averaged over its own size it does, and nothing else changed.
+    let (from, to) = ([470.0, 130.0], [180.0, 370.0]);
+    let frame = |dim: [f64; 2], seed: u64| {
+        Scene::new(W, H)
+            .background(6.0, [0.0, 0.0])
+            .gaussian([300.0, 240.0], 70.0, 1200.0)
+            .gaussian([300.0, 240.0], 250.0, 14.0)
+            .gaussian(dim, 35.0, 40.0)
+            .noise(60.0, seed)
+            .frame()
+    };
+    let (before, after) = (Picture::new(&frame(from, 31)), Picture::new(&frame(to, 32)));
+    // Where black clips the noise, a dark pixel scatters by less than the noise; on the
+    // halo, lifted off black, by more.
+    let dark = f64::from(before.noise_map().at(600, 450));
+    let halo = f64::from(before.noise_map().at(300, 380));
+    assert!((dark / 60.0 - 0.6).abs() < 0.1, "dark scatter {dark}");
+    assert!(halo > dark * 1.1, "halo scatter {halo}, dark {dark}");
+    let fine = registered_changes(&before, &after, [0.0, 0.0]);
+    assert!(
+        fine.appeared.is_empty() && fine.vanished.is_empty(),
+        "{fine:?}"
+    );
+    // Looked for at the bright beam's size (all an agent knows before it saw the dim one).
+    let moved = registered_changes_sized(&before, &after, [0.0, 0.0], 70.0);
+    let off = |b: &Beam, p: [f64; 2]| (b.centre[0] - p[0]).hypot(b.centre[1] - p[1]);
+    assert_eq!(moved.appeared.len(), 1, "{:?}", moved.appeared);
+    assert_eq!(moved.vanished.len(), 1, "{:?}", moved.vanished);
+    let (appeared, vanished) = (moved.appeared[0], moved.vanished[0]);
+    // The centre of a spot standing about ten noise deviations out of the difference is
+    // good to a few pixels (a seventh of its radius).
+    assert!(off(&appeared, to) < 5.0, "{appeared:?}");
+    assert!(off(&vanished, from) < 5.0, "{vanished:?}");
+    // Its size, from a fit to averages as wide as itself, is good to about half.
+    for beam in [appeared, vanished] {
+        assert!((beam.size() / 35.0 - 1.0).abs() < 0.6, "{beam:?}");
+    }
 }

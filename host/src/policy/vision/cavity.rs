@@ -3,7 +3,9 @@
 //! the only thing that moves with the in-coupler; rings, halo, ghosts and stray light
 //! cancel, and the laser's power drift is taken out first; when the primary jittered, it
 //! carried its rings, halo and ghosts along, so the earlier frame is first moved by as
-//! much as the primary's core moved). Nothing about the bench is assumed beyond the
+//! much as the primary's core moved; it is looked for at its own size, on averages as
+//! wide as it where finer ones show nothing, so that a faint secondary in heavy noise
+//! still stands out). Nothing about the bench is assumed beyond the
 //! command ranges: the first probe is a cautious share of the range, later ones are sized
 //! from the measured response to move the secondary a useful number of its own radii;
 //! while it has not been seen, a search moves in big steps around the start, then covers
@@ -18,7 +20,7 @@ use super::model::{SAME_STEP, Sighting, Tracker, Vec2, distance};
 use super::see::{Seen, View, alike, motion_in, stationary_pairs};
 use super::sight::{Scales, sight};
 use crate::imaging::{
-    Beam, Changes, core_centre, core_radius, nearest, registered_changes, scene_shift,
+    Beam, Changes, core_centre, core_radius, nearest, registered_changes_sized, scene_shift,
 };
 use crate::task::{Action, CavityLimits};
 
@@ -290,7 +292,10 @@ impl CavityAgent {
             .map_or([0.0, 0.0], |b| {
                 scene_shift(&before.picture, &view.picture, b, PRIMARY_CORE_SHARE)
             });
-        let changes = registered_changes(&before.picture, &view.picture, shift);
+        let radius = self.scales.radius(SECONDARY);
+        // Looked for at its own size: a faint secondary in heavy noise stands out only
+        // averaged over its size.
+        let changes = registered_changes_sized(&before.picture, &view.picture, shift, radius);
         let moved = motion_in(
             &changes,
             &before,
@@ -299,7 +304,6 @@ impl CavityAgent {
             expected,
             None,
         );
-        let radius = self.scales.radius(SECONDARY);
         let hidden = HIDDEN_RADII * primary_radius;
         // The secondary shows outside the primary's footprint, or where the change is clear
         // of the primary's core (what the core covers, a saturated core above all, does not

@@ -1,0 +1,164 @@
+//! How far one pixel's value scatters, place by place. Read noise is the same over the
+//! whole sensor, but where the dark level lies within a few noise deviations of black,
+//! black clips it from below: a pixel at the level of black itself scatters by 0.58 of the
+//! noise, one further below by less, and light lifts pixels off black, so on a bright
+//! beam's halo they scatter by the full noise. One number for the whole frame sets a
+//! detection threshold too high in the dark (a dim beam there stays below it) or too low
+//! on the halo. The map holds each cell's scatter, read off the statistics of a clipped
+//! normal distribution at the cell's mean level (means of many pixels, so its own noise
+//! hardly matters).
+
+/// Side of the map's cells, px.
+const CELL: usize = 8;
+
+/// A cell's level is the mean over this many cells either side of it too.
+const LEVEL_REACH: usize = 1;
+
+/// The standard normal density and cumulative distribution at `t`.
+fn normal(t: f64) -> (f64, f64) {
+    let density = (-0.5 * t * t).exp() / (2.0 * std::f64::consts::PI).sqrt();
+    // The complementary error function's Abramowitz-Stegun 7.1.26 fit (error < 1.5e-7).
+    let x = t.abs() / std::f64::consts::SQRT_2;
+    let k = 1.0 / (1.0 + 0.3275911 * x);
+    let erfc = k
+        * (0.254829592
+            + k * (-0.284496736 + k * (1.421413741 + k * (-1.453152027 + k * 1.061405429))))
+        * (-x * x).exp();
+    let cdf = if t >= 0.0 {
+        1.0 - 0.5 * erfc
+    } else {
+        0.5 * erfc
+    };
+    (density, cdf)
+}
+
+/// The mean of `max(0, t + Z)` for a standard normal `Z`: `t Φ(t) + φ(t)`, what a pixel
+/// whose level is `t` noise deviations above black reads on average.
+pub(crate) fn clipped_normal_mean(t: f64) -> f64 {
+    let (density, cdf) = normal(t);
+    t * cdf + density
+}
+
+/// The standard deviation of `max(0, t + Z)` for a standard normal `Z`.
+fn clipped_normal_spread(t: f64) -> f64 {
+    let (density, cdf) = normal(t);
+    let mean = t * cdf + density;
+    ((t * t + 1.0) * cdf + t * density - mean * mean)
+        .max(0.0)
+        .sqrt()
+}
+
+/// The level `t` (noise deviations above black) whose clipped mean is `mean`: the mean
+/// grows with the level (its slope is `Φ(t)`), so bisection finds it.
+fn level_of_clipped_mean(mean: f64) -> f64 {
+    let (mut low, mut high) = (-6.0, mean.max(0.0) + 1.0);
+    for _ in 0..40 {
+        let mid = 0.5 * (low + high);
+        if clipped_normal_mean(mid) < mean {
+            low = mid;
+        } else {
+            high = mid;
+        }
+    }
+    0.5 * (low + high)
+}
+
+/// One pixel's scatter per cell of a frame, gray levels.
+#[derive(Clone, Debug)]
+pub struct NoiseMap {
+    columns: usize,
+    rows: usize,
+    spread: Vec<f32>,
+}
+
+impl NoiseMap {
+    /// The same scatter `noise` everywhere on a `width` x `height` frame.
+    pub(crate) fn uniform(width: usize, height: usize, noise: f64) -> Self {
+        let (columns, rows) = (width.div_ceil(CELL), height.div_ceil(CELL));
+        Self {
+            columns,
+            rows,
+            spread: vec![noise as f32; columns * rows],
+        }
+    }
+
+    /// The scatter of the pixels of `raw` (row-major, `width` wide) whose read noise is
+    /// `noise` and which black clips: per cell, that of a clipped normal distribution at
+    /// the cell's mean level. Below black the values are a few rare pixels, far from any
+    /// normal distribution: the scatter is never taken below that at black itself.
+    pub(crate) fn clipped(raw: &[u8], width: usize, height: usize, noise: f64) -> Self {
+        let (columns, rows) = (width.div_ceil(CELL), height.div_ceil(CELL));
+        let mut sums = vec![0f64; columns * rows];
+        let mut counts = vec![0f64; columns * rows];
+        for (y, row) in raw.chunks_exact(width).enumerate() {
+            let base = (y / CELL) * columns;
+            for (c, chunk) in row.chunks(CELL).enumerate() {
+                sums[base + c] += chunk.iter().map(|&p| f64::from(p)).sum::<f64>();
+                counts[base + c] += chunk.len() as f64;
+            }
+        }
+        let floor = noise * clipped_normal_spread(0.0);
+        let mut spread = Vec::with_capacity(columns * rows);
+        for cy in 0..rows {
+            for cx in 0..columns {
+                let (mut sum, mut count) = (0.0, 0.0);
+                for ny in cy.saturating_sub(LEVEL_REACH)..(cy + LEVEL_REACH + 1).min(rows) {
+                    for nx in cx.saturating_sub(LEVEL_REACH)..(cx + LEVEL_REACH + 1).min(columns) {
+                        sum += sums[ny * columns + nx];
+                        count += counts[ny * columns + nx];
+                    }
+                }
+                let mean = sum / count.max(1.0) / noise;
+                let scatter = noise * clipped_normal_spread(level_of_clipped_mean(mean));
+                spread.push(scatter.max(floor) as f32);
+            }
+        }
+        Self {
+            columns,
+            rows,
+            spread,
+        }
+    }
+
+    /// The scatter of pixel (`x`, `y`), gray levels.
+    pub fn at(&self, x: usize, y: usize) -> f32 {
+        let (cx, cy) = (
+            (x / CELL).min(self.columns - 1),
+            (y / CELL).min(self.rows - 1),
+        );
+        self.spread[cy * self.columns + cx]
+    }
+
+    /// The scatter of `later - gain * earlier`, `self` being the later frame's map.
+    pub(crate) fn of_difference(&self, earlier: &NoiseMap, gain: f64) -> Self {
+        let gain = gain as f32;
+        Self {
+            columns: self.columns,
+            rows: self.rows,
+            spread: self
+                .spread
+                .iter()
+                .zip(&earlier.spread)
+                .map(|(a, b)| a.hypot(gain * b))
+                .collect(),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn clipped_normal_statistics_match_their_limits() {
+        // Far above black nothing clips; at black half the values read 0.
+        assert!((clipped_normal_mean(6.0) - 6.0).abs() < 1e-6);
+        assert!((clipped_normal_spread(6.0) - 1.0).abs() < 1e-6);
+        assert!((clipped_normal_mean(0.0) - 0.398_942).abs() < 1e-5);
+        assert!((clipped_normal_spread(0.0) - 0.583_819).abs() < 1e-5);
+        for t in [-2.0, -0.5, 0.1, 1.3, 3.0] {
+            let back = level_of_clipped_mean(clipped_normal_mean(t));
+            assert!((back - t).abs() < 1e-6, "{t} -> {back}");
+        }
+    }
+}
