@@ -11,6 +11,7 @@
 //! are measured apart).
 
 use super::beams::{Beam, find_beams, find_faint_beams};
+use super::cells::CellSums;
 use super::picture::Picture;
 
 /// Pixels brighter than this many noise deviations in both pictures set the gain ...
@@ -186,16 +187,12 @@ const LEVEL_OUTLIER: f64 = 3.0;
 /// outliers.
 fn without_level(difference: &[f32], w: usize, h: usize) -> Vec<f32> {
     let mut difference = difference.to_vec();
-    let (cw, ch) = (w.div_ceil(LEVEL_CELL), h.div_ceil(LEVEL_CELL));
-    let mut sums = vec![0f64; cw * ch];
-    let mut counts = vec![0f64; cw * ch];
-    for (y, row) in difference.chunks_exact(w).enumerate() {
-        let base = (y / LEVEL_CELL) * cw;
-        for (c, chunk) in row.chunks(LEVEL_CELL).enumerate() {
-            sums[base + c] += chunk.iter().map(|&v| f64::from(v)).sum::<f64>();
-            counts[base + c] += chunk.len() as f64;
-        }
-    }
+    let CellSums {
+        columns: cw,
+        rows: ch,
+        sums,
+        counts,
+    } = CellSums::new(&difference, w, h, LEVEL_CELL);
     let cells: Vec<([f64; 3], f64)> = (0..cw * ch)
         .map(|c| {
             let centre = |i: usize, side: usize| {

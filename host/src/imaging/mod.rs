@@ -5,6 +5,7 @@
 //! core moved: [`scene_shift`]).
 
 mod beams;
+mod cells;
 mod changes;
 mod core;
 mod gaussian;

@@ -8,6 +8,8 @@
 //! normal distribution at the cell's mean level (means of many pixels, so its own noise
 //! hardly matters).
 
+use super::cells::CellSums;
+
 /// Side of the map's cells, px.
 const CELL: usize = 8;
 
@@ -87,16 +89,12 @@ impl NoiseMap {
     /// the cell's mean level. Below black the values are a few rare pixels, far from any
     /// normal distribution: the scatter is never taken below that at black itself.
     pub(crate) fn clipped(raw: &[u8], width: usize, height: usize, noise: f64) -> Self {
-        let (columns, rows) = (width.div_ceil(CELL), height.div_ceil(CELL));
-        let mut sums = vec![0f64; columns * rows];
-        let mut counts = vec![0f64; columns * rows];
-        for (y, row) in raw.chunks_exact(width).enumerate() {
-            let base = (y / CELL) * columns;
-            for (c, chunk) in row.chunks(CELL).enumerate() {
-                sums[base + c] += chunk.iter().map(|&p| f64::from(p)).sum::<f64>();
-                counts[base + c] += chunk.len() as f64;
-            }
-        }
+        let CellSums {
+            columns,
+            rows,
+            sums,
+            counts,
+        } = CellSums::new(raw, width, height, CELL);
         let floor = noise * clipped_normal_spread(0.0);
         let mut spread = Vec::with_capacity(columns * rows);
         for cy in 0..rows {
