@@ -87,7 +87,8 @@ fn changes_found(
         .collect();
     let noise = after.noise().hypot(gain * before.noise());
     let noise_map = after.noise_map().of_difference(before.noise_map(), gain);
-    let faint = faint.map(|radius| (radius, without_level(&difference, w, h)));
+    // Levelled only when a side needs the faint search, once for both.
+    let levelled = std::cell::OnceCell::new();
     let side = |sign: f32| {
         let picture = |d: &[f32]| {
             Picture::from_light(
@@ -99,9 +100,10 @@ fn changes_found(
             )
         };
         let beams = find_beams(&picture(&difference));
-        match &faint {
-            Some((radius, levelled)) if beams.is_empty() => {
-                find_faint_beams(&picture(levelled), *radius)
+        match faint {
+            Some(radius) if beams.is_empty() => {
+                let levelled = levelled.get_or_init(|| without_level(&difference, w, h));
+                find_faint_beams(&picture(levelled), radius)
             }
             _ => beams,
         }
