@@ -1,9 +1,11 @@
 //! Image analysis shared by calibration, bench scoring and the image-only agent: a frame's
-//! light above its background ([`Picture`]), the beams in it ([`find_beams`]), the centre of
-//! a beam's bright core ([`core_centre`], [`core_radius`]), and what changed between two frames ([`changes`],
-//! [`registered_changes`] when the stationary scene shifted, by as much as a bright beam's
-//! core moved: [`scene_shift`]).
+//! light above its background ([`Picture`]), that light without what stays put at a camera
+//! place ([`Backdrop`]), the beams in it ([`find_beams`]), the centre of a beam's bright
+//! core ([`core_centre`], [`core_radius`]), and what changed between two frames
+//! ([`changes`], [`registered_changes`] when the stationary scene shifted, by as much as a
+//! bright beam's core moved: [`scene_shift`]).
 
+mod backdrop;
 mod beams;
 mod cells;
 mod changes;
@@ -17,6 +19,7 @@ pub(crate) mod synthetic;
 #[cfg(test)]
 mod tests;
 
+pub use backdrop::Backdrop;
 pub use beams::{Beam, find_beams};
 pub use changes::{Changes, changes, registered_changes, registered_changes_sized};
 pub use core::{core_centre, core_radius};

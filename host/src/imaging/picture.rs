@@ -1,6 +1,8 @@
 //! A camera frame made ready for measurement: the light above the background at every
 //! pixel. The background is a plane fitted robustly to cell means (ambient light and a
-//! slope cancel; cells holding light are rejected as outliers; means, not medians, because
+//! slope cancel; cells holding light are rejected as outliers, and when a fit started from
+//! the darkest cells lies clearly lower, light only adding, spots' tails over most of the
+//! frame had lifted the first; means, not medians, because
 //! a dark level close to zero clips the noise from below and only the mean of the clipped
 //! values is the level a dark pixel adds to a sum), the read noise comes from
 //! neighbouring-pixel differences (so a slope does not count as noise), a column streak
@@ -19,6 +21,16 @@ const CELLS_PER_SIDE: usize = 16;
 
 /// A cell whose median is this many robust deviations from the plane holds light.
 const CELL_OUTLIER: f64 = 3.0;
+
+/// A second background fit starts from this share of the cells, the darkest ...
+const DARKEST_START_SHARE: f64 = 0.25;
+
+/// ... rejects and readmits cells for at most this many rounds ...
+const FIT_ROUNDS: usize = 20;
+
+/// ... and is the background when it lies this many gray levels below the fit from all
+/// cells at the image centre.
+const LIFTED_LEVELS: f64 = 1.0;
 
 /// Share of the image height at the top and at the bottom where column streaks are read.
 const BAND_SHARE: f64 = 0.08;
@@ -156,6 +168,18 @@ impl Picture {
         self.background
     }
 
+    /// This picture with its light replaced by `light` (what is left once stationary light
+    /// is taken off), noise `noise`, scattering as `noise_map` says; saturated pixels stay.
+    pub(crate) fn with_light(&self, light: Vec<f32>, noise: f64, noise_map: NoiseMap) -> Self {
+        Self {
+            light,
+            noise,
+            noise_map,
+            saturated: self.saturated.clone(),
+            ..*self
+        }
+    }
+
     /// The same measurement on another light image of this size (a frame difference):
     /// nothing saturated, noise `noise`, scattering as `noise_map` says.
     pub(crate) fn from_light(
@@ -255,31 +279,23 @@ impl Plane {
                 cell.level = Some(0.0);
             }
         }
-        let mut keep: Vec<bool> = cells.iter().map(|c| c.level.is_some()).collect();
-        let mut plane = [0.0; 3];
-        for _ in 0..5 {
-            plane = least_squares_plane(&cells, &keep).unwrap_or(plane);
-            let residuals: Vec<f64> = cells
-                .iter()
-                .map(|c| {
-                    c.level.map_or(f64::INFINITY, |level| {
-                        level - (plane[0] + plane[1] * c.centre[0] + plane[2] * c.centre[1])
-                    })
-                })
-                .collect();
-            let kept: Vec<f64> = residuals
-                .iter()
-                .zip(&keep)
-                .filter(|(_, k)| **k)
-                .map(|(r, _)| r.abs())
-                .collect();
-            let spread = 1.4826 * median(kept).unwrap_or(0.0);
-            let limit = CELL_OUTLIER * spread.max(0.5);
-            let next: Vec<bool> = residuals.iter().map(|r| r.abs() <= limit).collect();
-            if next == keep || next.iter().filter(|k| **k).count() < 3 {
-                break;
-            }
-            keep = next;
+        // Fitted from all cells, the plane may settle on the tails of spots that reach over
+        // most of the frame; light only adds, so a fit started from the darkest cells that
+        // lies clearly lower is the background then.
+        let known: Vec<bool> = cells.iter().map(|c| c.level.is_some()).collect();
+        let (mut plane, mut keep) = robust_plane(&cells, known, 5);
+        let darkest = quantile_of(
+            cells.iter().filter_map(|c| c.level).collect(),
+            DARKEST_START_SHARE,
+        );
+        let dark: Vec<bool> = cells
+            .iter()
+            .map(|c| c.level.zip(darkest).is_some_and(|(l, d)| l <= d))
+            .collect();
+        let (low, low_keep) = robust_plane(&cells, dark, FIT_ROUNDS);
+        let centre = |p: &[f64; 3]| p[0] + p[1] * width as f64 / 2.0 + p[2] * height as f64 / 2.0;
+        if centre(&low) < centre(&plane) - LIFTED_LEVELS {
+            (plane, keep) = (low, low_keep);
         }
         let mut differences = Histogram::default();
         let kept_cells = || cells.iter().zip(&keep).filter(|(_, k)| **k).map(|(c, _)| c);
@@ -452,12 +468,48 @@ impl Histogram {
 }
 
 /// The median of the values, or `None` when there are none.
-fn median(mut values: Vec<f64>) -> Option<f64> {
+fn median(values: Vec<f64>) -> Option<f64> {
+    quantile_of(values, 0.5)
+}
+
+/// The value with `share` of the others below it, or `None` when there are none.
+fn quantile_of(mut values: Vec<f64>, share: f64) -> Option<f64> {
     if values.is_empty() {
         return None;
     }
-    let mid = values.len() / 2;
-    Some(*values.select_nth_unstable_by(mid, f64::total_cmp).1)
+    let at = ((share * values.len() as f64) as usize).min(values.len() - 1);
+    Some(*values.select_nth_unstable_by(at, f64::total_cmp).1)
+}
+
+/// A plane fitted to the cells from those in `keep`, rejecting and readmitting cells by
+/// their residuals for at most `rounds` rounds: the plane and the cells it kept.
+fn robust_plane(cells: &[Cell], mut keep: Vec<bool>, rounds: usize) -> ([f64; 3], Vec<bool>) {
+    let mut plane = [0.0; 3];
+    for _ in 0..rounds {
+        plane = least_squares_plane(cells, &keep).unwrap_or(plane);
+        let residuals: Vec<f64> = cells
+            .iter()
+            .map(|c| {
+                c.level.map_or(f64::INFINITY, |level| {
+                    level - (plane[0] + plane[1] * c.centre[0] + plane[2] * c.centre[1])
+                })
+            })
+            .collect();
+        let kept: Vec<f64> = residuals
+            .iter()
+            .zip(&keep)
+            .filter(|(_, k)| **k)
+            .map(|(r, _)| r.abs())
+            .collect();
+        let spread = 1.4826 * median(kept).unwrap_or(0.0);
+        let limit = CELL_OUTLIER * spread.max(0.5);
+        let next: Vec<bool> = residuals.iter().map(|r| r.abs() <= limit).collect();
+        if next == keep || next.iter().filter(|k| **k).count() < 3 {
+            break;
+        }
+        keep = next;
+    }
+    (plane, keep)
 }
 
 /// Least squares of `m = a + b x + c y` over the kept cells.
@@ -614,6 +666,26 @@ mod tests {
             .sum::<f64>()
             / 400.0;
         assert!(corner.abs() < 1.5, "{corner}");
+    }
+
+    #[test]
+    fn spots_whose_tails_cover_most_of_the_frame_do_not_lift_the_background() {
+        // The relay's frame at its near station with three stray spots: a beam of 100 px
+        // and three spots of 80 px, whose faint tails reach over most cells.
+        let frame = Scene::new(640, 480)
+            .background(6.0, [0.0, 0.0])
+            .gaussian([291.0, 201.0], 100.0, 220.0)
+            .gaussian([518.0, 110.0], 80.0, 176.0)
+            .gaussian([90.0, 346.0], 80.0, 176.0)
+            .gaussian([397.0, 413.0], 80.0, 176.0)
+            .noise(2.5, 4)
+            .frame();
+        let picture = Picture::new(&frame);
+        assert!(
+            (picture.background() - 6.0).abs() < 1.0,
+            "{}",
+            picture.background()
+        );
     }
 
     #[test]

@@ -4,6 +4,7 @@
 //! motor-to-image map to the clean sightings, solves it for the target, checks the result
 //! with a further measurement, and declares done only when the images agree.
 
+mod backdrops;
 mod cavity;
 mod lash;
 mod michelson;

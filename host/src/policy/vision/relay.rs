@@ -9,7 +9,11 @@
 //! farther by the ratio of the stations' distances (from the brief's bench geometry; when
 //! the bench did not give it, the far response is measured there), and centres it with
 //! that response, refined by Broyden updates. Features that stay put while the mirror
-//! tilts are stray light, remembered per station. Light lost at the far station is looked
+//! tilts are stray light, remembered per station; where a station shows other strong light
+//! beside the spot, the spot is thrown clear of itself once per visit and back, and the
+//! station's stationary light, learned from the two frames, is taken off every later frame
+//! there (see `backdrops`). A near servo that keeps returning to the same tilt settles for
+//! its best spot within the far station's tolerance. Light lost at the far station is looked
 //! for there in views around the expected place (its response is known), then by going
 //! back to the near station. At C8, with a centred compact spot, it declares done.
 //! Every move of the camera places it a little differently: at C8, where the result is
@@ -21,6 +25,7 @@
 
 use optalign_optics::{Frame, Station};
 
+use super::backdrops::{Backdrops, THROW_RADII, Throw, Thrown};
 use super::lash::Lash;
 use super::model::{Affine, Tracker, Vec2, carried, column_norm, distance, square_rings};
 use super::see::{View, motion, stationary_pairs};
@@ -58,6 +63,9 @@ const DONE_SHARE: f64 = 0.4;
 /// far station magnifies what is left by the lever ratio).
 const NEAR_CENTRED_SHARE: f64 = 0.1;
 
+/// A near servo sent to the same load this many times before is going round in a loop.
+const NEAR_REPEATS: usize = 2;
+
 /// Steps at a far station before going back to the near station to start again.
 const MAX_FAR_STEPS: usize = 10;
 
@@ -75,6 +83,13 @@ const MOVED_SHARE: f64 = 0.3;
 /// The spot's place at C8 is averaged over enough placements of the camera that their
 /// error, this many standard deviations of it, stays within the centring tolerance.
 const PLACEMENT_SIGMAS: f64 = 3.0;
+
+/// A throw (to learn a station's stationary light) is made only with more evaluations
+/// than this left.
+const MIN_REMAINING_TO_THROW: usize = 10;
+
+/// At most this many throws go one after the other to clear the spot of itself.
+const MAX_THROWS: usize = 3;
 
 /// A stationary feature is remembered within this many beam radii.
 const STRAY_RADII: f64 = 0.5;
@@ -135,6 +150,19 @@ pub struct RelayAgent {
     last: Option<RelayAction>,
     /// The spot in the last frame, px.
     seen_at: Option<Vec2>,
+    /// Each station's stationary light, learned by throwing the spot clear of itself.
+    backdrops: Backdrops,
+    /// The throw whose frame comes next.
+    throw: Option<Throw>,
+    /// Where the load goes back to after a throw.
+    return_to: Option<Vec2>,
+    /// The loads the near servo sent the current mirror to since it started.
+    near_visits: Vec<Vec2>,
+    /// The near servo went round in a loop: its best whole spot passes at the far
+    /// station's tolerance.
+    near_settled: bool,
+    /// The last tilt went back from a throw: it teaches nothing about lost motion.
+    returning: bool,
 }
 
 impl RelayAgent {
@@ -176,6 +204,12 @@ impl RelayAgent {
             radius: None,
             last: None,
             seen_at: None,
+            backdrops: Backdrops::new(8),
+            throw: None,
+            return_to: None,
+            near_visits: Vec::new(),
+            near_settled: false,
+            returning: false,
         };
         agent.near = agent.new_near_servo();
         agent.search = agent.new_search();
@@ -230,9 +264,27 @@ impl RelayAgent {
         if !rejected {
             self.apply_last();
         }
-        let view = View::new(frame);
+        if std::mem::take(&mut self.returning) {
+            self.tilted = false;
+        }
+        if let Some(action) = self.throw_under_way(frame, rejected) {
+            return action;
+        }
+        let view = View::of(self.backdrops.picture(self.station, frame));
         let spot = self.find_spot(&view);
         self.seen_at = spot.map(|s| s.centre);
+        let working = 2 * self.mirror + usize::from(self.phase == Phase::Far);
+        if remaining > MIN_REMAINING_TO_THROW
+            && self.station == working
+            && let Some(s) = spot.filter(|s| s.edge_level < WHOLE_ENOUGH_EDGE)
+            && self.backdrops.wanted(self.station, &view.beams, &s)
+            && let Some(step) = self.throw_step(&s)
+        {
+            let load = self.tilt_of(self.mirror);
+            self.throw = Some(self.backdrops.throw(self.station, frame, s, load, step));
+            self.previous = Some((view, self.station, self.cumulative));
+            return self.act(tilt_by(self.mirror, step));
+        }
         self.previous = Some((view, self.station, self.cumulative));
         if self.tilted {
             let [w, h] = self.previous.as_ref().expect("just set").0.size();
@@ -323,6 +375,91 @@ impl RelayAgent {
         strongest(&candidates)
     }
 
+    /// The next action of a throw under way (`None`: none is): on the frame after a
+    /// throw, the station's backdrop once the spot is clear of where it was (a further
+    /// throw when it is not yet); then back to where the load was, in as many tilts as the
+    /// longest allowed takes.
+    fn throw_under_way(&mut self, frame: &Frame, rejected: bool) -> Option<RelayAction> {
+        if let Some(mut throw) = self.throw.take().filter(|_| !rejected) {
+            let outcome = self.backdrops.learn(&throw, frame);
+            if outcome == Thrown::Learned {
+                self.forget_sightings();
+            }
+            let further = [0, 1].map(|a| self.command_of(self.mirror)[a] + throw.step[a]);
+            let bound = f64::from(self.limits.max_cumulative);
+            if outcome == Thrown::Short
+                && throw.made < MAX_THROWS
+                && further.iter().all(|c| c.abs() <= bound)
+            {
+                throw.made += 1;
+                let step = throw.step;
+                self.throw = Some(throw);
+                return Some(self.act(tilt_by(self.mirror, step)));
+            }
+            self.return_to = Some(throw.load);
+        }
+        if rejected {
+            self.return_to = None;
+        }
+        if let Some(load) = self.return_to {
+            let view = View::of(self.backdrops.picture(self.station, frame));
+            self.previous = Some((view, self.station, self.cumulative));
+            self.returning = true;
+            let m = self.mirror;
+            let (step, bound) = (
+                f64::from(self.limits.max_step),
+                f64::from(self.limits.max_cumulative),
+            );
+            let target = self.lash[m].command_for(load);
+            let command = self.command_of(m);
+            if (0..2).all(|a| (target[a].clamp(-bound, bound) - command[a]).abs() <= step) {
+                self.return_to = None;
+            }
+            return Some(self.tilt_to(load));
+        }
+        None
+    }
+
+    /// A tilt of one axis of the current mirror, steps, that moves `spot` clear of itself
+    /// (by [`THROW_RADII`] of its radii, at the response known or nominal here), towards
+    /// the middle of the axis's range; `None` when the response is unknown or no axis has
+    /// room.
+    fn throw_step(&self, spot: &Beam) -> Option<Vec2> {
+        let gain = match self.phase {
+            Phase::Near => self.near.gain(),
+            Phase::Far => self.far.gain(),
+        }
+        .or_else(|| self.assumed_gain(self.station));
+        let nominal = self.nominal_response(self.station);
+        let size = spot.size().max(self.radius.unwrap_or(0.0));
+        if size < 1.0 {
+            return None;
+        }
+        let wanted = THROW_RADII * size;
+        let bound = f64::from(self.limits.max_cumulative);
+        let command = self.command_of(self.mirror);
+        let mut best: Option<(f64, Vec2)> = None;
+        for axis in 0..2 {
+            let response = gain
+                .map(|g| g[0][axis].hypot(g[1][axis]))
+                .or(nominal)
+                .filter(|r| *r > 0.0)?;
+            let steps = (wanted / response)
+                .min(f64::from(self.limits.max_step))
+                .round();
+            let sign = if command[axis] > 0.0 { -1.0 } else { 1.0 };
+            if (command[axis] + sign * steps).abs() <= bound
+                && best.is_none_or(|(s, _)| steps < s)
+                && steps * response >= 2.0 * size
+            {
+                let mut step = [0.0; 2];
+                step[axis] = sign * steps;
+                best = Some((steps, step));
+            }
+        }
+        best.map(|(_, step)| step)
+    }
+
     /// What the last tilt showed of the current mirror's lost motion, by the response of
     /// the station's servo.
     fn learn_lost_motion(&mut self, spot: Option<Beam>, side: f64) {
@@ -354,6 +491,7 @@ impl RelayAgent {
             "spot_px": self.seen_at,
             "response_px_per_step": servo.gain(),
             "lost_motion_steps": self.lash.map(|lash| lash.band()),
+            "backdrops_at": self.backdrops.learned().map(|s| format!("C{}", s + 1)).collect::<Vec<_>>(),
             "c8_placements": {
                 "made": self.placements.len(),
                 "needed": self.placements_needed(),
@@ -428,9 +566,14 @@ impl RelayAgent {
         }
         self.near.observe(u, seen, centre, side);
         let near_station = 2 * self.mirror;
+        let centred_share = if self.near_settled {
+            PASS_SHARE
+        } else {
+            NEAR_CENTRED_SHARE
+        };
         if let Some(best) = self.near.best()
             && best.spot.whole
-            && distance(best.spot.at, centre) < NEAR_CENTRED_SHARE * self.tolerance()
+            && distance(best.spot.at, centre) < centred_share * self.tolerance()
             && best.tilt == u
         {
             let gain = self.near.gain();
@@ -449,6 +592,23 @@ impl RelayAgent {
             return self.act(measure(near_station + 1));
         }
         if let Some(next) = self.near.next(centre) {
+            // A servo sent back to the same load again and again learns nothing more
+            // there: its best whole spot, when it passes at the far station's tolerance,
+            // is as centred as this station makes it.
+            let repeats = self
+                .near_visits
+                .iter()
+                .filter(|v| distance(**v, next) < 1.0)
+                .count();
+            self.near_visits.push(next);
+            if repeats >= NEAR_REPEATS
+                && let Some(best) = self.near.best()
+                && best.spot.whole
+                && distance(best.spot.at, centre) < PASS_SHARE * self.tolerance()
+            {
+                self.near_settled = true;
+                return self.tilt_to(best.tilt);
+            }
             return self.tilt_to(next);
         }
         // Never seen here: search outwards around the start, wider each ring.
@@ -527,7 +687,7 @@ impl RelayAgent {
             Some(next) if self.far_steps <= MAX_FAR_STEPS => self.tilt_to(next),
             _ => {
                 self.phase = Phase::Near;
-                self.near = self.new_near_servo();
+                self.restart_near();
                 self.act(measure(2 * self.mirror))
             }
         }
@@ -607,12 +767,37 @@ impl RelayAgent {
         Some([self.far_start[0] + tilt[0], self.far_start[1] + tilt[1]])
     }
 
+    /// The station's servo made its sightings with stray light merged into the spot (a
+    /// backdrop was just learned): it starts again, its response kept as a guess that the
+    /// next steps confirm or refute.
+    fn forget_sightings(&mut self) {
+        let (gain, fresh) = match self.phase {
+            Phase::Near => (self.near.gain(), self.new_near_servo()),
+            Phase::Far => (self.far.gain(), self.new_servo(self.station, None)),
+        };
+        let fresh = match gain {
+            Some(g) => fresh.assume(g),
+            None => fresh,
+        };
+        match self.phase {
+            Phase::Near => self.near = fresh,
+            Phase::Far => self.far = fresh,
+        }
+    }
+
+    /// A new near servo for the current mirror, with no loads visited yet.
+    fn restart_near(&mut self) {
+        self.near = self.new_near_servo();
+        self.near_visits.clear();
+        self.near_settled = false;
+    }
+
     fn next_mirror(&mut self) {
         self.mirror += 1;
         self.phase = Phase::Near;
         self.search = self.new_search();
         self.near_start = self.tilt_of(self.mirror);
-        self.near = self.new_near_servo();
+        self.restart_near();
     }
 
     /// Tilts the current mirror's load to `target` (vertical, horizontal), with the
@@ -656,6 +841,9 @@ impl RelayAgent {
                 self.tilted = m == self.mirror;
             }
             Some(RelayAction::Measure { station }) => {
+                if station.index() != self.station {
+                    self.backdrops.arrived(station.index());
+                }
                 self.placed |= station.index() != self.station;
                 self.station = station.index();
             }
@@ -673,6 +861,15 @@ fn new_tracker(limits: &RelayLimits) -> Tracker {
 fn measure(station: usize) -> RelayAction {
     RelayAction::Measure {
         station: Station::from_index(station).unwrap_or(Station::C8),
+    }
+}
+
+/// A tilt of `mirror` by `step` (vertical, horizontal), steps.
+fn tilt_by(mirror: usize, step: Vec2) -> RelayAction {
+    RelayAction::Tilt {
+        mirror: mirror as u8,
+        vertical: step[0] as i32,
+        horizontal: step[1] as i32,
     }
 }
 

@@ -18,7 +18,11 @@ pub struct View {
 
 impl View {
     pub fn new(frame: &Frame) -> Self {
-        let picture = Picture::new(frame);
+        Self::of(Picture::new(frame))
+    }
+
+    /// A picture already made ready (a frame with stationary light taken off).
+    pub fn of(picture: Picture) -> Self {
         let beams = find_beams(&picture);
         Self { picture, beams }
     }

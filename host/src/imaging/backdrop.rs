@@ -1,0 +1,144 @@
+//! Light that stays put where the camera looks (stray spots, ghosts, a lit mount, and the
+//! background itself), learned from two frames between which the beam moved clear of where
+//! it was, and taken off later frames of the same place so that only what moves is left to
+//! measure. It works on the frames' raw levels: what stays put cancels pixel by pixel,
+//! background included, so no frame's own background fit (each a little different where
+//! spots' tails reach over it) leaves a slope behind.
+
+use optalign_optics::Frame;
+
+use super::cells::CellSums;
+use super::picture::Picture;
+
+/// Side of the cells, px, over which the darker of the two frames is chosen.
+const CELL: usize = 8;
+
+/// The raw levels a place shows without the beam.
+#[derive(Clone, Debug)]
+pub struct Backdrop {
+    width: usize,
+    height: usize,
+    levels: Vec<f32>,
+    /// The read noise of the frames it came from, gray levels.
+    noise: f64,
+}
+
+impl Backdrop {
+    /// The stationary light of two frames of one place between which the beam moved clear
+    /// of itself: cell by cell, the frame with less light there (the beam lies in one of
+    /// them at most, apart from where its two faint tails overlap). `None` when the frames
+    /// differ in size.
+    pub fn from_pair(a: &Frame, b: &Frame) -> Option<Self> {
+        if a.width() != b.width() || a.height() != b.height() {
+            return None;
+        }
+        let (width, height) = (a.width() as usize, a.height() as usize);
+        let sums_a = CellSums::new(a.pixels(), width, height, CELL);
+        let sums_b = CellSums::new(b.pixels(), width, height, CELL);
+        let columns = sums_a.columns;
+        let levels = a
+            .pixels()
+            .iter()
+            .zip(b.pixels())
+            .enumerate()
+            .map(|(i, (&pa, &pb))| {
+                let cell = (i / width / CELL) * columns + (i % width) / CELL;
+                f32::from(if sums_a.sums[cell] <= sums_b.sums[cell] {
+                    pa
+                } else {
+                    pb
+                })
+            })
+            .collect();
+        let noise = Picture::new(a).noise().max(Picture::new(b).noise());
+        Some(Self {
+            width,
+            height,
+            levels,
+            noise,
+        })
+    }
+
+    /// The stationary light above `picture`'s background, gray levels, row-major.
+    pub fn light_above(&self, picture: &Picture) -> Vec<f32> {
+        let background = picture.background() as f32;
+        self.levels.iter().map(|v| v - background).collect()
+    }
+
+    /// `frame` without this light (`None` when the sizes differ), less the offset of its
+    /// typical cell (the darker cells chosen carry a slight bias): its noise is the two
+    /// frames' combined, its saturated pixels stay saturated.
+    pub fn removed_from(&self, frame: &Frame) -> Option<Picture> {
+        if frame.width() as usize != self.width || frame.height() as usize != self.height {
+            return None;
+        }
+        let picture = Picture::new(frame);
+        let light: Vec<f32> = frame
+            .pixels()
+            .iter()
+            .zip(&self.levels)
+            .map(|(&p, b)| f32::from(p) - b)
+            .collect();
+        let noise = picture.noise().hypot(self.noise);
+        let noise_map = picture.noise_map().of_difference(
+            &super::NoiseMap::uniform(self.width, self.height, self.noise),
+            1.0,
+        );
+        Some(picture.with_light(
+            without_offset(light, self.width, self.height),
+            noise,
+            noise_map,
+        ))
+    }
+}
+
+/// `light` (`width` wide, `height` high) less the median of its cells' means.
+fn without_offset(mut light: Vec<f32>, width: usize, height: usize) -> Vec<f32> {
+    let sums = CellSums::new(&light, width, height, CELL);
+    let mut means: Vec<f64> = sums
+        .sums
+        .iter()
+        .zip(&sums.counts)
+        .map(|(s, n)| s / n.max(1.0))
+        .collect();
+    if means.is_empty() {
+        return light;
+    }
+    let mid = means.len() / 2;
+    let offset = *means.select_nth_unstable_by(mid, f64::total_cmp).1 as f32;
+    light.iter_mut().for_each(|v| *v -= offset);
+    light
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::imaging::find_beams;
+    use crate::imaging::synthetic::Scene;
+
+    /// A beam of radius 100 px at `beam` beside a stationary stray spot, its tails touching.
+    fn frame(beam: [f64; 2], seed: u64) -> Frame {
+        let scene = Scene::new(640, 480)
+            .background(6.0, [0.0, 0.0])
+            .gaussian([90.0, 346.0], 80.0, 176.0)
+            .gaussian(beam, 100.0, 220.0)
+            .noise(2.5, seed);
+        scene.frame()
+    }
+
+    #[test]
+    fn a_stray_spot_touching_the_beam_is_taken_off() {
+        let later = frame([200.0, 230.0], 3);
+        let merged = find_beams(&Picture::new(&later));
+        let off = |b: &crate::imaging::Beam| (b.centre[0] - 200.0).hypot(b.centre[1] - 230.0);
+        assert!(
+            merged.iter().all(|b| off(b) > 2.0),
+            "the stray should pull the beam without a backdrop: {merged:?}"
+        );
+        let backdrop =
+            Backdrop::from_pair(&frame([190.0, 200.0], 1), &frame([520.0, 150.0], 2)).unwrap();
+        let beams = find_beams(&backdrop.removed_from(&later).unwrap());
+        assert_eq!(beams.len(), 1, "{beams:?}");
+        assert!(off(&beams[0]) < 1.0, "{:?}", beams[0].centre);
+    }
+}

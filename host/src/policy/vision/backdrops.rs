@@ -1,0 +1,320 @@
+//! The light that stays put at each camera place (stray spots, ghosts), for an agent whose
+//! beam shares the image with it: where a place shows other strong features beside the
+//! beam, the agent throws the beam clear of where it is for one frame and back, and the
+//! two frames give the place's [`Backdrop`], taken off every later frame there. A backdrop
+//! that leaves a hole (the light it holds moved: the camera sits differently) is forgotten.
+
+use optalign_optics::Frame;
+
+use super::model::{Vec2, distance};
+use crate::imaging::{Backdrop, Beam, Picture, changes, find_beams};
+
+/// Another feature counts as light beside the beam with at least this share of its light.
+const BESIDE_SHARE: f64 = 0.3;
+
+/// A throw moves the beam this many of its radii ...
+pub const THROW_RADII: f64 = 4.0;
+
+/// ... and is clear of where it was when its two places in the frames' difference lie at
+/// least this many of its radii apart (where its tails overlap, a few per cent of its peak
+/// stays in the backdrop).
+const CLEAR_RADII: f64 = 2.5;
+
+/// A change in a throw's difference counts with this share of the strongest feature's
+/// light (a beam's faint speckle halo included) ...
+const COME_SHARE: f64 = 0.05;
+
+/// ... unless it lies inside a feature of the picture before with less than this share
+/// of its light.
+const RESIDUE_SHARE: f64 = 0.3;
+
+/// A hole with this share of the backdrop's strongest feature's light makes it stale.
+const HOLE_SHARE: f64 = 0.3;
+
+/// Light this many noise deviations above the backdrop is the frame's own, left out when
+/// holes are looked for.
+const OWN_LIGHT_NOISES: f64 = 3.0;
+
+/// A backdrop holds when taking it off the frame before the throw leaves the beam with
+/// this share of its light.
+const KEPT_SHARE: f64 = 0.3;
+
+/// One place's backdrop.
+#[derive(Default)]
+struct Place {
+    /// The backdrop and the light of its strongest feature.
+    backdrop: Option<(Backdrop, f64)>,
+    /// A throw was made here during this visit.
+    tried: bool,
+}
+
+/// A throw under way: the place, the beam's spot and the picture before it.
+pub struct Throw {
+    place: usize,
+    spot: Beam,
+    before: Frame,
+    /// Where the mount's load was before the throw, to go back to.
+    pub load: Vec2,
+    /// The command of one throw, steps per axis, and how many were made.
+    pub step: Vec2,
+    pub made: usize,
+}
+
+/// What the frame after a throw showed.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Thrown {
+    /// The beam moved clear: the place has its backdrop.
+    Learned,
+    /// The beam moved, not yet clear of where it was: a further throw may clear it.
+    Short,
+    /// Nothing to learn from (the beam did not move, or the backdrop would not hold).
+    Failed,
+}
+
+/// The backdrops of a task's camera places.
+pub struct Backdrops {
+    places: Vec<Place>,
+}
+
+impl Backdrops {
+    pub fn new(places: usize) -> Self {
+        Self {
+            places: (0..places).map(|_| Place::default()).collect(),
+        }
+    }
+
+    /// `frame` at `place`, made ready, without the place's backdrop when it has one (one
+    /// that leaves a hole is forgotten).
+    pub fn picture(&mut self, place: usize, frame: &Frame) -> Picture {
+        let Some(slot) = self
+            .places
+            .get_mut(place)
+            .filter(|slot| slot.backdrop.is_some())
+        else {
+            return Picture::new(frame);
+        };
+        let Some((backdrop, light)) = &slot.backdrop else {
+            return Picture::new(frame);
+        };
+        let Some(clean) = backdrop.removed_from(frame) else {
+            *slot = Place::default();
+            return Picture::new(frame);
+        };
+        // Where the backdrop holds more light than the frame, without the frame's own light
+        // (beside a hole it would pull the hole's measuring window negative).
+        let own = (OWN_LIGHT_NOISES * clean.noise()) as f32;
+        let negated: Vec<f32> = clean
+            .light()
+            .iter()
+            .map(|&v| if v > own { 0.0 } else { -v })
+            .collect();
+        let holes =
+            find_beams(&clean.with_light(negated, clean.noise(), clean.noise_map().clone()));
+        if holes
+            .first()
+            .is_some_and(|h| h.signal >= HOLE_SHARE * light)
+        {
+            *slot = Place::default();
+            return Picture::new(frame);
+        }
+        clean
+    }
+
+    /// The places with a backdrop.
+    pub fn learned(&self) -> impl Iterator<Item = usize> + '_ {
+        self.places
+            .iter()
+            .enumerate()
+            .filter(|(_, p)| p.backdrop.is_some())
+            .map(|(i, _)| i)
+    }
+
+    /// The camera arrived at `place`: a throw may be tried there again when it has no
+    /// backdrop (the last one may have found the beam merged with other light).
+    pub fn arrived(&mut self, place: usize) {
+        if let Some(p) = self.places.get_mut(place) {
+            p.tried = false;
+        }
+    }
+
+    /// A throw is worth making at `place`: it has no backdrop and none was tried since,
+    /// and `beams` hold another strong feature beside the beam's `spot`.
+    pub fn wanted(&self, place: usize, beams: &[Beam], spot: &Beam) -> bool {
+        self.places
+            .get(place)
+            .is_some_and(|p| p.backdrop.is_none() && !p.tried)
+            && beams.iter().any(|b| {
+                distance(b.centre, spot.centre) > 1.0 && b.signal >= BESIDE_SHARE * spot.signal
+            })
+    }
+
+    /// Starts a throw of `step` at `place` from the frame `before` (showing `spot`), the
+    /// load at `load`.
+    pub fn throw(
+        &mut self,
+        place: usize,
+        before: &Frame,
+        spot: Beam,
+        load: Vec2,
+        step: Vec2,
+    ) -> Throw {
+        if let Some(p) = self.places.get_mut(place) {
+            p.tried = true;
+        }
+        Throw {
+            place,
+            spot,
+            before: before.clone(),
+            load,
+            step,
+            made: 1,
+        }
+    }
+
+    /// Learns the throw's place's backdrop from the picture after it. In the frames'
+    /// difference the stationary light cancels: the beam's old place shows as light gone,
+    /// its new one (with any faint halo around it) as light come. Nothing gone but light
+    /// come: the beam came into view, and the picture before is the backdrop. Gone, and all
+    /// that came clear of it: the darker of the two pictures place by place, when taking it
+    /// off the picture before leaves the beam there. Neither: the beam was in neither
+    /// picture (or stayed put; a backdrop holding it leaves a hole once it moves).
+    pub fn learn(&mut self, throw: &Throw, after: &Frame) -> Thrown {
+        let before = Picture::new(&throw.before);
+        let after_picture = Picture::new(after);
+        let moved = changes(&before, &after_picture);
+        // A change counts with a share of the strongest feature's light, unless it lies
+        // inside a feature of the picture before with little of its light (that feature's
+        // light changing: flicker).
+        let features = find_beams(&before);
+        let reference = features.first().map_or(throw.spot.signal, |f| f.signal);
+        let notable = |blobs: &[Beam]| -> Vec<Beam> {
+            blobs
+                .iter()
+                .filter(|c| {
+                    c.signal >= COME_SHARE * reference
+                        && !features.iter().any(|f| {
+                            distance(f.centre, c.centre) < f.size()
+                                && c.signal < RESIDUE_SHARE * f.signal
+                        })
+                })
+                .copied()
+                .collect()
+        };
+        let gone = notable(&moved.vanished).first().copied();
+        let come = notable(&moved.appeared);
+        let backdrop = match gone {
+            None if !come.is_empty() => Backdrop::from_pair(&throw.before, &throw.before),
+            None => Backdrop::from_pair(&throw.before, after),
+            Some(gone) => {
+                if come
+                    .iter()
+                    .any(|c| distance(c.centre, gone.centre) < CLEAR_RADII * gone.size())
+                {
+                    return Thrown::Short;
+                }
+                Backdrop::from_pair(&throw.before, after).filter(|backdrop| {
+                    backdrop.removed_from(&throw.before).is_some_and(|left| {
+                        find_beams(&left).iter().any(|b| {
+                            distance(b.centre, gone.centre) < gone.size()
+                                && b.signal >= KEPT_SHARE * gone.signal
+                        })
+                    })
+                })
+            }
+        };
+        let Some(backdrop) = backdrop else {
+            return Thrown::Failed;
+        };
+        let strongest = find_beams(&after_picture.with_light(
+            backdrop.light_above(&after_picture),
+            after_picture.noise(),
+            after_picture.noise_map().clone(),
+        ))
+        .first()
+        .map_or(0.0, |b| b.signal);
+        match self.places.get_mut(throw.place) {
+            Some(p) if strongest > 0.0 => {
+                p.backdrop = Some((backdrop, strongest));
+                Thrown::Learned
+            }
+            _ => Thrown::Failed,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::imaging::synthetic::Scene;
+
+    /// A 640 x 480 frame: a beam of radius 100 px at `beam` (none when `None`) and a
+    /// stationary stray spot of 80 px at `stray`.
+    fn frame(beam: Option<[f64; 2]>, stray: [f64; 2], seed: u64) -> Frame {
+        let scene = Scene::new(640, 480)
+            .background(6.0, [0.0, 0.0])
+            .gaussian(stray, 80.0, 176.0);
+        match beam {
+            Some(at) => scene.gaussian(at, 100.0, 220.0),
+            None => scene,
+        }
+        .noise(2.5, seed)
+        .frame()
+    }
+
+    const STRAY: [f64; 2] = [90.0, 346.0];
+
+    /// A throw at place 0 from the beam at `from`.
+    fn thrown(backdrops: &mut Backdrops, from: [f64; 2]) -> Throw {
+        let before = frame(Some(from), STRAY, 1);
+        let spot = *find_beams(&Picture::new(&before)).first().expect("a beam");
+        backdrops.throw(0, &before, spot, [0.0; 2], [0.0, 1000.0])
+    }
+
+    #[test]
+    fn a_throw_clear_of_the_beam_teaches_the_stray_light_and_it_is_taken_off() {
+        let mut backdrops = Backdrops::new(2);
+        let throw = thrown(&mut backdrops, [190.0, 200.0]);
+        let other = [throw.spot, throw.spot.translated([250.0, 0.0])];
+        assert!(backdrops.wanted(1, &other, &throw.spot));
+        assert!(
+            !backdrops.wanted(0, &other, &throw.spot),
+            "tried on this visit"
+        );
+        let after = frame(Some([520.0, 150.0]), STRAY, 2);
+        assert_eq!(backdrops.learn(&throw, &after), Thrown::Learned);
+        assert_eq!(backdrops.learned().collect::<Vec<_>>(), vec![0]);
+        // Touching the stray, the beam is found alone and where it is.
+        let clean = backdrops.picture(0, &frame(Some([200.0, 230.0]), STRAY, 3));
+        let beams = find_beams(&clean);
+        assert_eq!(beams.len(), 1, "{beams:?}");
+        assert!(distance(beams[0].centre, [200.0, 230.0]) < 1.0, "{beams:?}");
+        // The other place learned nothing.
+        let other_place = frame(Some([200.0, 230.0]), STRAY, 3);
+        assert_eq!(
+            backdrops.picture(1, &other_place).light(),
+            Picture::new(&other_place).light()
+        );
+    }
+
+    #[test]
+    fn a_throw_into_the_dark_or_short_of_clear_is_told_apart() {
+        let mut backdrops = Backdrops::new(1);
+        let throw = thrown(&mut backdrops, [190.0, 200.0]);
+        let short = frame(Some([290.0, 200.0]), STRAY, 4);
+        assert_eq!(backdrops.learn(&throw, &short), Thrown::Short);
+        let dark = frame(None, STRAY, 5);
+        assert_eq!(backdrops.learn(&throw, &dark), Thrown::Learned);
+    }
+
+    #[test]
+    fn a_backdrop_whose_light_moved_is_forgotten() {
+        let mut backdrops = Backdrops::new(1);
+        let throw = thrown(&mut backdrops, [190.0, 200.0]);
+        let dark = frame(None, STRAY, 5);
+        assert_eq!(backdrops.learn(&throw, &dark), Thrown::Learned);
+        // The camera sits differently: the stray light shows 150 px away.
+        let moved = backdrops.picture(0, &frame(Some([400.0, 150.0]), [240.0, 346.0], 6));
+        assert_eq!(backdrops.learned().count(), 0);
+        assert_eq!(find_beams(&moved).len(), 2);
+    }
+}
