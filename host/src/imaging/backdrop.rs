@@ -8,7 +8,7 @@
 use optalign_optics::Frame;
 
 use super::cells::CellSums;
-use super::picture::Picture;
+use super::picture::{Picture, median};
 
 /// Side of the cells, px, over which the darker of the two frames is chosen.
 const CELL: usize = 8;
@@ -26,9 +26,9 @@ pub struct Backdrop {
 impl Backdrop {
     /// The stationary light of two frames of one place between which the beam moved clear
     /// of itself: cell by cell, the frame with less light there (the beam lies in one of
-    /// them at most, apart from where its two faint tails overlap). `None` when the frames
-    /// differ in size.
-    pub fn from_pair(a: &Frame, b: &Frame) -> Option<Self> {
+    /// them at most, apart from where its two faint tails overlap). `noise` is the larger
+    /// read noise of the two. `None` when the frames differ in size.
+    pub fn from_pair(a: &Frame, b: &Frame, noise: f64) -> Option<Self> {
         if a.width() != b.width() || a.height() != b.height() {
             return None;
         }
@@ -50,7 +50,6 @@ impl Backdrop {
                 })
             })
             .collect();
-        let noise = Picture::new(a).noise().max(Picture::new(b).noise());
         Some(Self {
             width,
             height,
@@ -65,14 +64,13 @@ impl Backdrop {
         self.levels.iter().map(|v| v - background).collect()
     }
 
-    /// `frame` without this light (`None` when the sizes differ), less the offset of its
-    /// typical cell (the darker cells chosen carry a slight bias): its noise is the two
-    /// frames' combined, its saturated pixels stay saturated.
-    pub fn removed_from(&self, frame: &Frame) -> Option<Picture> {
+    /// `frame` (made ready as `picture`) without this light (`None` when the sizes differ),
+    /// less the offset of its typical cell (the darker cells chosen carry a slight bias):
+    /// its noise is the two frames' combined, its saturated pixels stay saturated.
+    pub fn removed_from(&self, frame: &Frame, picture: &Picture) -> Option<Picture> {
         if frame.width() as usize != self.width || frame.height() as usize != self.height {
             return None;
         }
-        let picture = Picture::new(frame);
         let light: Vec<f32> = frame
             .pixels()
             .iter()
@@ -95,18 +93,15 @@ impl Backdrop {
 /// `light` (`width` wide, `height` high) less the median of its cells' means.
 fn without_offset(mut light: Vec<f32>, width: usize, height: usize) -> Vec<f32> {
     let sums = CellSums::new(&light, width, height, CELL);
-    let mut means: Vec<f64> = sums
+    let means: Vec<f64> = sums
         .sums
         .iter()
         .zip(&sums.counts)
         .map(|(s, n)| s / n.max(1.0))
         .collect();
-    if means.is_empty() {
-        return light;
+    if let Some(offset) = median(means) {
+        light.iter_mut().for_each(|v| *v -= offset as f32);
     }
-    let mid = means.len() / 2;
-    let offset = *means.select_nth_unstable_by(mid, f64::total_cmp).1 as f32;
-    light.iter_mut().for_each(|v| *v -= offset);
     light
 }
 
@@ -136,8 +131,12 @@ mod tests {
             "the stray should pull the beam without a backdrop: {merged:?}"
         );
         let backdrop =
-            Backdrop::from_pair(&frame([190.0, 200.0], 1), &frame([520.0, 150.0], 2)).unwrap();
-        let beams = find_beams(&backdrop.removed_from(&later).unwrap());
+            Backdrop::from_pair(&frame([190.0, 200.0], 1), &frame([520.0, 150.0], 2), 2.5).unwrap();
+        let beams = find_beams(
+            &backdrop
+                .removed_from(&later, &Picture::new(&later))
+                .unwrap(),
+        );
         assert_eq!(beams.len(), 1, "{beams:?}");
         assert!(off(&beams[0]) < 1.0, "{:?}", beams[0].centre);
     }

@@ -468,7 +468,7 @@ impl Histogram {
 }
 
 /// The median of the values, or `None` when there are none.
-fn median(values: Vec<f64>) -> Option<f64> {
+pub(super) fn median(values: Vec<f64>) -> Option<f64> {
     quantile_of(values, 0.5)
 }
 

@@ -86,19 +86,16 @@ impl Backdrops {
     /// `frame` at `place`, made ready, without the place's backdrop when it has one (one
     /// that leaves a hole is forgotten).
     pub fn picture(&mut self, place: usize, frame: &Frame) -> Picture {
-        let Some(slot) = self
-            .places
-            .get_mut(place)
-            .filter(|slot| slot.backdrop.is_some())
-        else {
-            return Picture::new(frame);
+        let picture = Picture::new(frame);
+        let Some(slot) = self.places.get_mut(place) else {
+            return picture;
         };
         let Some((backdrop, light)) = &slot.backdrop else {
-            return Picture::new(frame);
+            return picture;
         };
-        let Some(clean) = backdrop.removed_from(frame) else {
+        let Some(clean) = backdrop.removed_from(frame, &picture) else {
             *slot = Place::default();
-            return Picture::new(frame);
+            return picture;
         };
         // Where the backdrop holds more light than the frame, without the frame's own light
         // (beside a hole it would pull the hole's measuring window negative).
@@ -115,7 +112,7 @@ impl Backdrops {
             .is_some_and(|h| h.signal >= HOLE_SHARE * light)
         {
             *slot = Place::default();
-            return Picture::new(frame);
+            return picture;
         }
         clean
     }
@@ -202,9 +199,12 @@ impl Backdrops {
         };
         let gone = notable(&moved.vanished).first().copied();
         let come = notable(&moved.appeared);
+        let noise = before.noise().max(after_picture.noise());
         let backdrop = match gone {
-            None if !come.is_empty() => Backdrop::from_pair(&throw.before, &throw.before),
-            None => Backdrop::from_pair(&throw.before, after),
+            None if !come.is_empty() => {
+                Backdrop::from_pair(&throw.before, &throw.before, before.noise())
+            }
+            None => Backdrop::from_pair(&throw.before, after, noise),
             Some(gone) => {
                 if come
                     .iter()
@@ -212,13 +212,15 @@ impl Backdrops {
                 {
                     return Thrown::Short;
                 }
-                Backdrop::from_pair(&throw.before, after).filter(|backdrop| {
-                    backdrop.removed_from(&throw.before).is_some_and(|left| {
-                        find_beams(&left).iter().any(|b| {
-                            distance(b.centre, gone.centre) < gone.size()
-                                && b.signal >= KEPT_SHARE * gone.signal
+                Backdrop::from_pair(&throw.before, after, noise).filter(|backdrop| {
+                    backdrop
+                        .removed_from(&throw.before, &before)
+                        .is_some_and(|left| {
+                            find_beams(&left).iter().any(|b| {
+                                distance(b.centre, gone.centre) < gone.size()
+                                    && b.signal >= KEPT_SHARE * gone.signal
+                            })
                         })
-                    })
                 })
             }
         };

@@ -405,17 +405,11 @@ impl RelayAgent {
             let view = View::of(self.backdrops.picture(self.station, frame));
             self.previous = Some((view, self.station, self.cumulative));
             self.returning = true;
-            let m = self.mirror;
-            let (step, bound) = (
-                f64::from(self.limits.max_step),
-                f64::from(self.limits.max_cumulative),
-            );
-            let target = self.lash[m].command_for(load);
-            let command = self.command_of(m);
-            if (0..2).all(|a| (target[a].clamp(-bound, bound) - command[a]).abs() <= step) {
+            let (tilt, arrives) = self.tilt_towards(load);
+            if arrives {
                 self.return_to = None;
             }
-            return Some(self.tilt_to(load));
+            return Some(self.act(tilt));
         }
         None
     }
@@ -425,11 +419,10 @@ impl RelayAgent {
     /// the middle of the axis's range; `None` when the response is unknown or no axis has
     /// room.
     fn throw_step(&self, spot: &Beam) -> Option<Vec2> {
-        let gain = match self.phase {
-            Phase::Near => self.near.gain(),
-            Phase::Far => self.far.gain(),
-        }
-        .or_else(|| self.assumed_gain(self.station));
+        let gain = self
+            .servo()
+            .gain()
+            .or_else(|| self.assumed_gain(self.station));
         let nominal = self.nominal_response(self.station);
         let size = spot.size().max(self.radius.unwrap_or(0.0));
         if size < 1.0 {
@@ -463,10 +456,7 @@ impl RelayAgent {
     /// What the last tilt showed of the current mirror's lost motion, by the response of
     /// the station's servo.
     fn learn_lost_motion(&mut self, spot: Option<Beam>, side: f64) {
-        let servo = match self.phase {
-            Phase::Near => &self.near,
-            Phase::Far => &self.far,
-        };
+        let servo = self.servo();
         let tilt = self.tilt_of(self.mirror);
         if let Some((from, moved)) = spot
             .map(|s| self.estimate(&s))
@@ -481,15 +471,15 @@ impl RelayAgent {
     /// station), the response it steers by there, each mirror's lost motion, and C8's
     /// placements.
     pub fn claims(&self) -> serde_json::Value {
-        let (stage, servo) = match self.phase {
-            Phase::Near => ("near station", &self.near),
-            Phase::Far => ("far station", &self.far),
+        let stage = match self.phase {
+            Phase::Near => "near station",
+            Phase::Far => "far station",
         };
         serde_json::json!({
             "phase": format!("M{} at its {stage}", self.mirror + 1),
             "imaged_at": format!("C{}", self.station + 1),
             "spot_px": self.seen_at,
-            "response_px_per_step": servo.gain(),
+            "response_px_per_step": self.servo().gain(),
             "lost_motion_steps": self.lash.map(|lash| lash.band()),
             "backdrops_at": self.backdrops.learned().map(|s| format!("C{}", s + 1)).collect::<Vec<_>>(),
             "c8_placements": {
@@ -771,17 +761,22 @@ impl RelayAgent {
     /// backdrop was just learned): it starts again, its response kept as a guess that the
     /// next steps confirm or refute.
     fn forget_sightings(&mut self) {
-        let (gain, fresh) = match self.phase {
-            Phase::Near => (self.near.gain(), self.new_near_servo()),
-            Phase::Far => (self.far.gain(), self.new_servo(self.station, None)),
-        };
-        let fresh = match gain {
+        let gain = self.servo().gain();
+        let guessed = |fresh: Servo| match gain {
             Some(g) => fresh.assume(g),
             None => fresh,
         };
         match self.phase {
-            Phase::Near => self.near = fresh,
-            Phase::Far => self.far = fresh,
+            Phase::Near => self.near = guessed(self.new_near_servo()),
+            Phase::Far => self.far = guessed(self.new_servo(self.station, None)),
+        }
+    }
+
+    /// The servo of the station the current mirror is steered at.
+    fn servo(&self) -> &Servo {
+        match self.phase {
+            Phase::Near => &self.near,
+            Phase::Far => &self.far,
         }
     }
 
@@ -803,20 +798,25 @@ impl RelayAgent {
     /// Tilts the current mirror's load to `target` (vertical, horizontal), with the
     /// command going past it by the lost motion, within bounds.
     fn tilt_to(&mut self, target: Vec2) -> RelayAction {
+        let (tilt, _) = self.tilt_towards(target);
+        self.act(tilt)
+    }
+
+    /// The tilt of [`Self::tilt_to`] (at most the longest allowed per axis), and whether
+    /// it gets the command there.
+    fn tilt_towards(&self, target: Vec2) -> (RelayAction, bool) {
         let m = self.mirror;
         let step = f64::from(self.limits.max_step);
         let bound = f64::from(self.limits.max_cumulative);
         let u = self.command_of(m);
         let command = self.lash[m].command_for(target);
-        let delta = |a: usize| {
-            let t = command[a].clamp(-bound, bound);
-            (t - u[a]).clamp(-step, step).round() as i32
-        };
-        self.act(RelayAction::Tilt {
+        let wanted = [0, 1].map(|a| command[a].clamp(-bound, bound) - u[a]);
+        let tilt = RelayAction::Tilt {
             mirror: m as u8,
-            vertical: delta(0),
-            horizontal: delta(1),
-        })
+            vertical: wanted[0].clamp(-step, step).round() as i32,
+            horizontal: wanted[1].clamp(-step, step).round() as i32,
+        };
+        (tilt, wanted.iter().all(|w| w.abs() <= step))
     }
 
     fn act(&mut self, action: RelayAction) -> RelayAction {
