@@ -525,9 +525,9 @@ fn least_squares_plane(cells: &[Cell], keep: &[bool]) -> Option<[f64; 3]> {
     Some([solution[0], solution[1], solution[2]])
 }
 
-/// Removes a constant offset from each column whose top and bottom bands both show one
-/// more than the typical column does (a read-out smear streak runs the whole height; a beam
-/// rarely fills both bands). A
+/// Removes a constant offset from each column whose top and bottom bands, and two bands
+/// between them, all show one more than the typical column does (a read-out smear streak
+/// runs the whole height; beams rarely fill all four bands). A
 /// streak as wide as a beam is faint per column but clear over a few neighbouring columns,
 /// so an offset counts when it is significant in its own column or on average over
 /// [`STREAK_COLUMNS`] columns around it.
@@ -539,33 +539,41 @@ fn remove_column_streaks(light: &mut [f32], width: usize, height: usize, noise: 
         return;
     }
     let limit = (STREAK_SIGNIFICANCE * 1.25 * noise / (band as f64).sqrt()) as f32;
-    // Column-major copies of the two bands, read row by row.
-    let mut top = vec![0f32; band * width];
-    let mut bottom = vec![0f32; band * width];
-    for y in 0..band {
-        for x in 0..width {
-            top[x * band + y] = light[y * width + x];
-            bottom[x * band + y] = light[(height - band + y) * width + x];
-        }
-    }
     // Each band's column medians, relative to the band's typical column: a streak is a
     // few columns, an offset shared by all of them is left to the background.
-    let relative = |band_pixels: &mut [f32]| {
-        let mut medians: Vec<f32> = band_pixels.chunks_exact_mut(band).map(median_f32).collect();
+    let relative = |first_row: usize| {
+        let mut pixels = vec![0f32; band * width];
+        for y in 0..band {
+            for x in 0..width {
+                pixels[x * band + y] = light[(first_row + y) * width + x];
+            }
+        }
+        let mut medians: Vec<f32> = pixels.chunks_exact_mut(band).map(median_f32).collect();
         let typical = median_f32(&mut medians.clone());
         medians.iter_mut().for_each(|m| *m -= typical);
         medians
     };
-    let (top, bottom) = (relative(&mut top), relative(&mut bottom));
-    let offsets: Vec<f32> = top
-        .into_iter()
-        .zip(bottom)
-        .map(|(t, b)| {
-            // The smaller offset, taken only when both bands agree on its sign.
-            if t > 0.0 && b > 0.0 {
-                t.min(b)
-            } else if t < 0.0 && b < 0.0 {
-                t.max(b)
+    // A streak runs the whole height: the top and bottom bands and two between them all
+    // show it (spots in the top and bottom bands of the same columns leave a dark band
+    // between them).
+    let bands: Vec<Vec<f32>> = [
+        0,
+        (height - band) / 3,
+        2 * (height - band) / 3,
+        height - band,
+    ]
+    .map(relative)
+    .into();
+    let offsets: Vec<f32> = (0..width)
+        .map(|x| {
+            // The smallest offset, taken only when every band agrees on its sign.
+            let (low, high) = bands.iter().fold((f32::MAX, f32::MIN), |(lo, hi), b| {
+                (lo.min(b[x]), hi.max(b[x]))
+            });
+            if low > 0.0 {
+                low
+            } else if high < 0.0 {
+                high
             } else {
                 0.0
             }

@@ -358,7 +358,7 @@ impl MichelsonAgent {
             && let Some(s) = moved.to
             && !s.beam.clipped
         {
-            self.scales.learn_shape(k, &s.beam);
+            self.scales.learn_shape(k, &s.beam, after);
         }
         // The parked beam, found near where its map sent it.
         if let Some((_, to)) = parked

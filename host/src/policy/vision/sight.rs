@@ -3,7 +3,8 @@
 //! stationary features wander between frames (jitter) and how precise a centre is, so
 //! that every threshold is a multiple of something measured on this bench, not a pixel
 //! count of one camera. [`sight`] calls a beam clean when it is whole, compact, alone and
-//! of its known size; a beam the border cuts counts when a Gaussian fits it well.
+//! of its known size; a beam the border cuts counts when a Gaussian fits it well. A beam's
+//! size is learned only where it shows with dark all round it.
 
 use super::model::{Sighting, Vec2, distance};
 use super::see::View;
@@ -43,6 +44,10 @@ const TOUCH_BRIGHTER: f64 = 1.5;
 /// A detection still this share of its peak bright at the border is a sliver of light
 /// that goes on beyond the image.
 const SLIVER_EDGE: f64 = 0.5;
+
+/// A beam whose centre lies this many of its major radii from every border shows with
+/// dark all round it.
+const CLEAR_OF_BORDER_RADII: f64 = 2.0;
 
 /// What the images taught about this bench.
 #[derive(Clone, Debug, Default)]
@@ -84,8 +89,13 @@ impl Scales {
     }
 
     /// Learns the size and the length (major radius) of feature `k` from a clean sighting
-    /// of the whole beam.
-    pub fn learn_shape(&mut self, k: usize, beam: &Beam) {
+    /// of the whole beam in `view`, when it lies clear of the border: beside it, the spot
+    /// may be one lobe of a beam whose node lies on the border (nothing cut shows), and
+    /// its size would make the whole beam seem two merged.
+    pub fn learn_shape(&mut self, k: usize, beam: &Beam, view: &View) {
+        if !clear_of_border(beam, view) {
+            return;
+        }
         self.learn_size(k, beam.size());
         self.majors[k].push(beam.radii[0]);
     }
@@ -168,6 +178,14 @@ fn median(values: &mut [f64]) -> Option<f64> {
     Some(*values.select_nth_unstable_by(mid, f64::total_cmp).1)
 }
 
+/// Whether `beam` lies [`CLEAR_OF_BORDER_RADII`] of its major radii from every border of
+/// `view`: what shows is all of it, not a lobe or an arc of a beam going on beyond.
+fn clear_of_border(beam: &Beam, view: &View) -> bool {
+    let margin = CLEAR_OF_BORDER_RADII * beam.radii[0];
+    let size = view.size();
+    (0..2).all(|a| beam.centre[a] >= margin && size[a] - beam.centre[a] >= margin)
+}
+
 /// Whether `beam` (one of the view's detections) is a part of a larger patch of light:
 /// another detection of `view` lies within [`OVERLAP_RADII`] of their summed sizes and is
 /// [`TOUCH_BRIGHTER`] times brighter at its peak (`beam` is a fringe or tail of two merged
@@ -184,9 +202,9 @@ pub fn touches(beam: &Beam, view: &View) -> bool {
 }
 
 /// How `beam`, taken for feature `k`, serves the model: clean when whole, compact, of the
-/// feature's known size and length and clear of `other` (another known beam's place and radius); a
-/// beam the border cuts is clean at its fitted centre when a Gaussian fits it well and
-/// the centre is not far outside.
+/// feature's known size and length and clear of `other` (another known beam's place and
+/// radius); a beam the border cuts is clean at its fitted centre when a Gaussian fits it
+/// well and the centre is not far outside.
 pub fn sight(
     beam: &Beam,
     view: &View,
@@ -223,5 +241,45 @@ pub fn sight(
     match trusted {
         Some(fit) => Sighting::Fitted(fit.centre),
         None => Sighting::Partial(beam.centre),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::imaging::synthetic::Scene;
+
+    /// A 640 x 480 view of a two-lobed beam (TEM01: lobes above and below `centre`).
+    fn two_lobed(centre: [f64; 2]) -> View {
+        let frame = Scene::new(640, 480)
+            .background(6.0, [0.0, 0.0])
+            .hermite_gauss(centre, 60.0, 0, 1, 200.0)
+            .noise(2.5, 1)
+            .frame();
+        View::new(&frame)
+    }
+
+    #[test]
+    fn a_lobe_whose_node_lies_on_the_border_does_not_teach_the_beam_size() {
+        let mut scales = Scales::default();
+        // The node on the bottom border: the upper lobe shows whole, nothing is cut.
+        let lobe = two_lobed([320.0, 480.0]);
+        assert_eq!(lobe.beams.len(), 1, "{:?}", lobe.beams);
+        assert!(!lobe.beams[0].clipped, "{:?}", lobe.beams[0]);
+        scales.learn_shape(0, &lobe.beams[0], &lobe);
+        assert_eq!(scales.known_radius(0), None, "learned from a lobe");
+        // Seen whole in the middle, the beam is clean (with the lobe's length known, it
+        // would have been taken for two spots merged) and teaches its size.
+        let whole = two_lobed([320.0, 240.0]);
+        assert_eq!(whole.beams.len(), 1, "{:?}", whole.beams);
+        let lobe_length = lobe.beams[0].radii[0];
+        assert!(whole.beams[0].radii[0] > MAX_SIZE_RATIO * lobe_length);
+        let seen = sight(&whole.beams[0], &whole, &scales, 0, None);
+        assert!(
+            matches!(seen, Sighting::Clean(c) if distance(c, [320.0, 240.0]) < 1.0),
+            "{seen:?}"
+        );
+        scales.learn_shape(0, &whole.beams[0], &whole);
+        assert_eq!(scales.known_radius(0), Some(whole.beams[0].size()));
     }
 }
