@@ -193,6 +193,15 @@ async fn the_vision_agent_aligns_the_relay() {
     }
 }
 
+#[tokio::test]
+async fn the_relay_servo_does_not_probe_a_refuted_response_again_the_same_way() {
+    // Seed 116: at C1 the spot sits whole by the sensor's edge and both probes from it took
+    // it to the edge; the response they gave sent the servo back to the same tilt, which
+    // refuted it, and the same two probes gave it again until the budget ran out.
+    let summary = run_into(TaskKind::Relay, 116, None).await;
+    assert!(summary.success && summary.declared_done, "{summary:?}");
+}
+
 /// The widest dead band the relay agent claims to have learned on any axis, steps.
 fn largest_lost_motion(steps: &[serde_json::Value]) -> f64 {
     let last = &steps.last().unwrap()["claims"]["lost_motion_steps"];

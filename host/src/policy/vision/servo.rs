@@ -13,7 +13,8 @@
 //! from the response that failed. A probe that lost the
 //! spot is tried the other way, then shorter; one that hardly moved it, longer; a response
 //! from a cut spot that proved wrong is probed again with longer probes, which show more
-//! than the ones that misled it.
+//! than the ones that misled it; each new round of probes after a refuted response goes
+//! the other way round from the last.
 
 use nalgebra::Matrix2;
 
@@ -101,6 +102,8 @@ pub struct Servo {
     last: Option<(Vec2, Spot)>,
     /// The most light a spot showed, for how much of a cut one shows.
     brightest: f64,
+    /// The way the next round of probes first goes (+1, -1).
+    probe_sign: f64,
 }
 
 impl Servo {
@@ -119,6 +122,7 @@ impl Servo {
             pending: Pending::Nothing,
             last: None,
             brightest: 0.0,
+            probe_sign: 1.0,
         }
     }
 
@@ -318,7 +322,7 @@ impl Servo {
                         sign,
                         flipped,
                     } if a == axis => (sign, flipped),
-                    _ => (1.0, false),
+                    _ => (self.probe_sign, false),
                 };
                 self.pending = Pending::Probe {
                     axis,
@@ -349,8 +353,11 @@ impl Servo {
                 if (length < self.bounds[0] && !best.spot.whole) || standing_still {
                     // A spot the response says is where it should be, when it is cut or was
                     // just seen off the target: the response is wrong. Probe again from the
-                    // best tilt.
+                    // best tilt, not with the probes that gave it (they would give it
+                    // again): the other way round, and longer from a cut spot (they show
+                    // more of it).
                     self.drop_gain();
+                    self.probe_sign = -self.probe_sign;
                     if !best.spot.whole {
                         self.probe = (self.probe * GROWTH).min(self.bounds[1]);
                     }
