@@ -202,6 +202,18 @@ async fn the_relay_servo_does_not_probe_a_refuted_response_again_the_same_way() 
     assert!(summary.success && summary.declared_done, "{summary:?}");
 }
 
+#[tokio::test]
+async fn the_relay_agent_takes_a_spot_that_no_tilt_moves_for_stray_light() {
+    // Realistic seed 102: at C3 the beam went dark after a long tilt and the agent steered
+    // by a stationary stray spot, growing its probes until they met the end of the range,
+    // then sending tilts of zero steps to the end of the budget.
+    let path =
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../docs/scenarios/realistic.toml");
+    let scenario = ScenarioFile::load(&path).expect("the realistic scenario");
+    let summary = run_on(TaskKind::Relay, 102, scenario, None).await;
+    assert!(summary.success && summary.declared_done, "{summary:?}");
+}
+
 /// The widest dead band the relay agent claims to have learned on any axis, steps.
 fn largest_lost_motion(steps: &[serde_json::Value]) -> f64 {
     let last = &steps.last().unwrap()["claims"]["lost_motion_steps"];

@@ -9,7 +9,8 @@
 //! farther by the ratio of the stations' distances (from the brief's bench geometry; when
 //! the bench did not give it, the far response is measured there), and centres it with
 //! that response, refined by Broyden updates. Features that stay put while the mirror
-//! tilts are stray light, remembered per station; where a station shows other strong light
+//! tilts are stray light, remembered per station (so is all that shows once tilts adding
+//! up to the longest probe moved nothing, and the near servo starts again); where a station shows other strong light
 //! beside the spot, the spot is thrown clear of itself once per visit and back, and the
 //! station's stationary light, learned from the two frames, is taken off every later frame
 //! there (see `backdrops`). A near servo that keeps returning to the same tilt settles for
@@ -145,6 +146,11 @@ pub struct RelayAgent {
     previous: Option<(View, usize, [i32; 8])>,
     /// Stationary features seen per station (stray light), px.
     stray: Vec<(usize, Vec2)>,
+    /// The spot steered by last turned out to be stray light.
+    steered_by_stray: bool,
+    /// How far the current mirror was tilted at this station since anything last moved
+    /// there, steps.
+    still_swing: f64,
     /// Radius of a whole spot, px, once seen.
     radius: Option<f64>,
     last: Option<RelayAction>,
@@ -201,6 +207,8 @@ impl RelayAgent {
             known_near: None,
             previous: None,
             stray: Vec::new(),
+            steered_by_stray: false,
+            still_swing: 0.0,
             radius: None,
             last: None,
             seen_at: None,
@@ -272,6 +280,9 @@ impl RelayAgent {
         }
         let view = View::of(self.backdrops.picture(self.station, frame));
         let spot = self.find_spot(&view);
+        if std::mem::take(&mut self.steered_by_stray) && self.phase == Phase::Near {
+            self.restart_near();
+        }
         self.seen_at = spot.map(|s| s.centre);
         let working = 2 * self.mirror + usize::from(self.phase == Phase::Far);
         if remaining > MIN_REMAINING_TO_THROW
@@ -344,12 +355,29 @@ impl RelayAgent {
             return strongest(&candidates);
         };
         if *station != self.station {
+            self.still_swing = 0.0;
             return strongest(&candidates);
         }
         let steady = 0.1 * radius;
         let tilted = *tilts != self.cumulative;
         if tilted {
             let moved = motion(before, view, steady, None, None);
+            if moved.to.is_some() || moved.from.is_some() {
+                self.still_swing = 0.0;
+            } else {
+                self.still_swing += self.swing_since(tilts);
+                if self.still_swing >= self.longest_probe() {
+                    // Tilts adding up to the longest probe moved nothing: all that shows is
+                    // stray light, and the servo that steered by it starts again
+                    // (searching, the beam unseen).
+                    for (i, _) in stationary_pairs(&before.beams, &view.beams, steady) {
+                        self.stray.push((self.station, before.beams[i].centre));
+                    }
+                    self.still_swing = 0.0;
+                    self.steered_by_stray = true;
+                    return None;
+                }
+            }
             // A short move shows only as a change next to the spot, not as the spot: the
             // spot itself is then the strongest feature, as when nothing moved. A faint
             // change far from the light (speckle shifting) is not the beam either.
@@ -373,6 +401,20 @@ impl RelayAgent {
             }
         }
         strongest(&candidates)
+    }
+
+    /// How far the current mirror was tilted since the cumulative tilts `then`, steps
+    /// (the longer axis's move).
+    fn swing_since(&self, then: &[i32; 8]) -> f64 {
+        let m = self.mirror;
+        (2 * m..2 * m + 2)
+            .map(|a| f64::from(self.cumulative[a] - then[a]).abs())
+            .fold(0.0, f64::max)
+    }
+
+    /// The longest probe a servo makes, steps: it moves a beam across any sensor.
+    fn longest_probe(&self) -> f64 {
+        PROBE_SHARES[1] * 2.0 * f64::from(self.limits.max_cumulative)
     }
 
     /// The next action of a throw under way (`None`: none is): on the frame after a
