@@ -13,8 +13,8 @@
 //! from the response that failed. A probe that lost the
 //! spot is tried the other way, then shorter; one that hardly moved it, longer; a response
 //! from a cut spot that proved wrong is probed again with longer probes, which show more
-//! than the ones that misled it; each new round of probes after a refuted response goes
-//! the other way round from the last.
+//! than the ones that misled it; a response refuted again from the same best tilt is
+//! probed the other way round from the last.
 
 use nalgebra::Matrix2;
 
@@ -104,6 +104,8 @@ pub struct Servo {
     brightest: f64,
     /// The way the next round of probes first goes (+1, -1).
     probe_sign: f64,
+    /// The best tilt a response was last refuted from.
+    refuted_at: Option<Vec2>,
 }
 
 impl Servo {
@@ -123,6 +125,7 @@ impl Servo {
             last: None,
             brightest: 0.0,
             probe_sign: 1.0,
+            refuted_at: None,
         }
     }
 
@@ -353,11 +356,17 @@ impl Servo {
                 if (length < self.bounds[0] && !best.spot.whole) || standing_still {
                     // A spot the response says is where it should be, when it is cut or was
                     // just seen off the target: the response is wrong. Probe again from the
-                    // best tilt, not with the probes that gave it (they would give it
-                    // again): the other way round, and longer from a cut spot (they show
-                    // more of it).
+                    // best tilt, longer from a cut spot (they show more of it); refuted from
+                    // the same best tilt again, not with the probes that gave it twice
+                    // (they would give it for ever), but the other way round.
                     self.drop_gain();
-                    self.probe_sign = -self.probe_sign;
+                    if self
+                        .refuted_at
+                        .is_some_and(|at| distance(at, best.tilt) < 1.0)
+                    {
+                        self.probe_sign = -self.probe_sign;
+                    }
+                    self.refuted_at = Some(best.tilt);
                     if !best.spot.whole {
                         self.probe = (self.probe * GROWTH).min(self.bounds[1]);
                     }
