@@ -10,8 +10,8 @@
 //! the bench did not give it, the far response is measured there), and centres it with
 //! that response, refined by Broyden updates. Features that stay put while the mirror
 //! tilts are stray light, remembered per station (so is all that shows once tilts adding
-//! up to the longest probe moved nothing, and the near servo starts again); where a station shows other strong light
-//! beside the spot, the spot is thrown clear of itself once per visit and back, and the
+//! up to the longest probe moved nothing, and the near servo starts again); where a
+//! station shows other strong light beside the spot, the spot is thrown clear of itself once per visit and back, and the
 //! station's stationary light, learned from the two frames, is taken off every later frame
 //! there (see `backdrops`). A near servo that keeps returning to the same tilt settles for
 //! its best spot within the far station's tolerance. Light lost at the far station is looked
@@ -414,7 +414,14 @@ impl RelayAgent {
 
     /// The longest probe a servo makes, steps: it moves a beam across any sensor.
     fn longest_probe(&self) -> f64 {
-        PROBE_SHARES[1] * 2.0 * f64::from(self.limits.max_cumulative)
+        self.probe_bounds()[1]
+    }
+
+    /// The shortest and longest probe or step of a servo, steps: shares of the command
+    /// range.
+    fn probe_bounds(&self) -> Vec2 {
+        let range = 2.0 * f64::from(self.limits.max_cumulative);
+        PROBE_SHARES.map(|share| share * range)
     }
 
     /// The next action of a throw under way (`None`: none is): on the frame after a
@@ -543,7 +550,7 @@ impl RelayAgent {
     /// the range.
     fn new_servo(&self, station: usize, gain: Option<[[f64; 2]; 2]>) -> Servo {
         let range = 2.0 * f64::from(self.limits.max_cumulative);
-        let bounds = PROBE_SHARES.map(|share| share * range);
+        let bounds = self.probe_bounds();
         let side = self.image_side_px.or_else(|| {
             self.previous
                 .as_ref()
