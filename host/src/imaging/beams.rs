@@ -40,8 +40,18 @@ const CORE_PROMINENCE_NOISES: f32 = 5.0;
 /// between two beams is wide)...
 const JOIN_GAP_SHARE: f64 = 0.35;
 
-/// ... and the weaker peak is at least this share of the stronger.
+/// ... and the weaker peak is at least this share of the stronger ...
 const JOIN_PEAK_SHARE: f32 = 0.2;
+
+/// ... and the light between them falls below this share of the weaker peak (beyond the
+/// noise): inside one beam the parts are parted by a dark line (a mode's node, a dark
+/// fringe, a speckle grain's edge), while between two beams whose tails overlap the tails
+/// add up: two Gaussians of one size keep more than 4 % of their peak between them until
+/// they are 2.8 radii apart, where their cores lie too far apart to be joined anyway.
+const JOIN_VALLEY_SHARE: f32 = 0.04;
+
+/// The valley may exceed that share by this many deviations of a block's mean.
+const JOIN_VALLEY_NOISES: f32 = 3.0;
 
 /// Half the side of the measuring window, in second-moment radii (1/e² radii of a Gaussian).
 const WINDOW_RADII: f64 = 2.5;
@@ -146,7 +156,7 @@ pub fn find_faint_beams(picture: &Picture, radius: f64) -> Vec<Beam> {
 fn beams_in(picture: &Picture, reach: usize) -> Vec<Beam> {
     let grid = Grid::new(picture, reach);
     let regions = grid.regions();
-    let groups = join_regions(&grid, &regions);
+    let groups = join_regions(picture, &grid, &regions);
     let owner = grid.partition(&regions, &groups);
     let mut beams: Vec<Beam> = groups
         .iter()
@@ -508,7 +518,7 @@ fn box_means(values: &[f32], bw: usize, bh: usize, reach: usize) -> Vec<f32> {
 
 /// Groups regions that belong to one beam: cores close relative to their distance, peaks
 /// alike. Each group lists region indices.
-fn join_regions(grid: &Grid, regions: &[Region]) -> Vec<Vec<usize>> {
+fn join_regions(picture: &Picture, grid: &Grid, regions: &[Region]) -> Vec<Vec<usize>> {
     let mut parent: Vec<usize> = (0..regions.len()).collect();
     fn root(parent: &mut [usize], mut i: usize) -> usize {
         while parent[i] != i {
@@ -524,7 +534,9 @@ fn join_regions(grid: &Grid, regions: &[Region]) -> Vec<Vec<usize>> {
                 continue;
             }
             let distance = (ra.centre[0] - rb.centre[0]).hypot(ra.centre[1] - rb.centre[1]);
-            if core_gap(grid, ra, rb, JOIN_GAP_SHARE * distance) {
+            if core_gap(grid, ra, rb, JOIN_GAP_SHARE * distance)
+                && dark_between(picture, grid, ra, rb)
+            {
                 let (x, y) = (root(&mut parent, a), root(&mut parent, b));
                 parent[x] = y;
             }
@@ -541,6 +553,40 @@ fn join_regions(grid: &Grid, regions: &[Region]) -> Vec<Vec<usize>> {
         groups[index[top]].push(r);
     }
     groups
+}
+
+/// Whether the light on the line between two regions' centres falls to a dark valley:
+/// below [`JOIN_VALLEY_SHARE`] of the weaker region's brightest block, beyond the noise.
+/// A saturated region's true peak is unknown (far above its clipped level, which a
+/// node's faint light may well exceed the share of): its valley is not judged.
+fn dark_between(picture: &Picture, grid: &Grid, a: &Region, b: &Region) -> bool {
+    let (w, h) = (picture.width(), picture.height());
+    let brightest = |r: &Region| {
+        r.blocks
+            .iter()
+            .copied()
+            .max_by(|&i, &j| grid.means[i].total_cmp(&grid.means[j]))
+            .filter(|&i| !block_pixels(i, grid, w, h).any(|p| picture.is_saturated(p)))
+            .map(|i| grid.means[i])
+    };
+    let (Some(peak_a), Some(peak_b)) = (brightest(a), brightest(b)) else {
+        return true;
+    };
+    let weaker = peak_a.min(peak_b);
+    let length = (b.centre[0] - a.centre[0]).hypot(b.centre[1] - a.centre[1]);
+    let samples = (2.0 * length / BLOCK as f64).ceil().max(1.0) as usize;
+    (0..=samples).any(|k| {
+        let t = k as f64 / samples as f64;
+        let x = a.centre[0] + t * (b.centre[0] - a.centre[0]);
+        let y = a.centre[1] + t * (b.centre[1] - a.centre[1]);
+        let (bx, by) = (
+            (x.max(0.0) as usize / BLOCK).min(grid.bw - 1),
+            (y.max(0.0) as usize / BLOCK).min(grid.bh - 1),
+        );
+        let i = by * grid.bw + bx;
+        let block_noise = grid.pixel_noise[i] / BLOCK as f32;
+        grid.means[i] <= JOIN_VALLEY_SHARE * weaker + JOIN_VALLEY_NOISES * block_noise
+    })
 }
 
 /// Whether the cores of two regions come within `limit` px of each other.

@@ -201,6 +201,23 @@ fn two_beams_side_by_side_stay_apart() {
 }
 
 #[test]
+fn stray_spots_whose_tails_touch_the_beam_stay_apart_from_it() {
+    // A relay camera's frame: a broad beam between three stray spots, 2.5 to 2.7 beam radii
+    // from it; their tails add up between them (no dark line parts them).
+    let beam = [320.0, 237.0];
+    let strays = [[517.0, 110.0], [392.0, 410.0], [90.0, 346.0]];
+    let scene = strays
+        .iter()
+        .fold(bench(16).gaussian(beam, 93.0, 220.0), |scene, &at| {
+            scene.gaussian(at, 77.0, 175.0)
+        });
+    assert_eq!(beams(&scene).len(), 4, "{:?}", beams(&scene));
+    let (found_beam, off) = found(&scene, beam);
+    assert!(off < 1.0, "{found_beam:?} is {off} px off");
+    assert_eq!(found_beam.parts, 1);
+}
+
+#[test]
 fn a_speckle_cloud_is_not_a_spot() {
     let truth = [320.0, 240.0];
     let cloud = bench(16).gaussian(truth, 110.0, 70.0).speckle(1.0, 2.5, 17);
