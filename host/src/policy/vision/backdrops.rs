@@ -3,6 +3,9 @@
 //! beam, the agent throws the beam clear of where it is for one frame and back, and the
 //! two frames give the place's [`Backdrop`], taken off every later frame there. A backdrop
 //! that leaves a hole (the light it holds moved: the camera sits differently) is forgotten.
+//! Light fixed to the camera (a ghost of its window, a lit speck on the sensor) shows the
+//! same at every place: a place without a backdrop borrows another place's when taking it
+//! off the frame there leaves no hole.
 
 use optalign_optics::Frame;
 
@@ -42,10 +45,12 @@ const KEPT_SHARE: f64 = 0.3;
 /// One place's backdrop.
 #[derive(Default)]
 struct Place {
-    /// The backdrop and the light of its strongest feature.
-    backdrop: Option<(Backdrop, f64)>,
+    /// The backdrop and its strongest feature.
+    backdrop: Option<(Backdrop, Beam)>,
     /// A throw was made here during this visit.
     tried: bool,
+    /// Borrowing another place's backdrop was tried here during this visit.
+    borrow_tried: bool,
 }
 
 /// A throw under way: the place, the beam's spot and the picture before it.
@@ -87,34 +92,47 @@ impl Backdrops {
     /// that leaves a hole is forgotten).
     pub fn picture(&mut self, place: usize, frame: &Frame) -> Picture {
         let picture = Picture::new(frame);
-        let Some(slot) = self.places.get_mut(place) else {
+        let Some(slot) = self.places.get(place) else {
             return picture;
         };
-        let Some((backdrop, light)) = &slot.backdrop else {
-            return picture;
-        };
-        let Some(clean) = backdrop.removed_from(frame, &picture) else {
-            *slot = Place::default();
-            return picture;
-        };
-        // Where the backdrop holds more light than the frame, without the frame's own light
-        // (beside a hole it would pull the hole's measuring window negative).
-        let own = (OWN_LIGHT_NOISES * clean.noise()) as f32;
-        let negated: Vec<f32> = clean
-            .light()
-            .iter()
-            .map(|&v| if v > own { 0.0 } else { -v })
-            .collect();
-        let holes =
-            find_beams(&clean.with_light(negated, clean.noise(), clean.noise_map().clone()));
-        if holes
-            .first()
-            .is_some_and(|h| h.signal >= HOLE_SHARE * light)
-        {
-            *slot = Place::default();
-            return picture;
+        if slot.backdrop.is_none() && !slot.borrow_tried {
+            self.borrow(place, frame, &picture);
         }
-        clean
+        let slot = &mut self.places[place];
+        let Some((backdrop, strongest)) = &slot.backdrop else {
+            return picture;
+        };
+        match taken_off(backdrop, strongest, frame, &picture) {
+            Some(clean) => clean,
+            None => {
+                *slot = Place::default();
+                picture
+            }
+        }
+    }
+
+    /// Gives `place` a copy of another place's backdrop (the latest learned first) that
+    /// holds light beside the beam (its strongest feature has a share of the frame's
+    /// strongest one's light) and leaves no hole in `frame`: all its light shows there.
+    fn borrow(&mut self, place: usize, frame: &Frame, picture: &Picture) {
+        self.places[place].borrow_tried = true;
+        let lenders: Vec<&(Backdrop, Beam)> = self
+            .places
+            .iter()
+            .rev()
+            .filter_map(|p| p.backdrop.as_ref())
+            .collect();
+        if lenders.is_empty() {
+            return;
+        }
+        let brightest = find_beams(picture).first().map_or(0.0, |b| b.signal);
+        let borrowed = lenders.into_iter().find(|(backdrop, strongest)| {
+            strongest.signal >= BESIDE_SHARE * brightest
+                && taken_off(backdrop, strongest, frame, picture).is_some()
+        });
+        if let Some(borrowed) = borrowed.cloned() {
+            self.places[place].backdrop = Some(borrowed);
+        }
     }
 
     /// The places with a backdrop.
@@ -131,6 +149,7 @@ impl Backdrops {
     pub fn arrived(&mut self, place: usize) {
         if let Some(p) = self.places.get_mut(place) {
             p.tried = false;
+            p.borrow_tried = false;
         }
     }
 
@@ -233,15 +252,39 @@ impl Backdrops {
             after_picture.noise_map().clone(),
         ))
         .first()
-        .map_or(0.0, |b| b.signal);
-        match self.places.get_mut(throw.place) {
-            Some(p) if strongest > 0.0 => {
+        .copied();
+        match (self.places.get_mut(throw.place), strongest) {
+            (Some(p), Some(strongest)) if strongest.signal > 0.0 => {
                 p.backdrop = Some((backdrop, strongest));
                 Thrown::Learned
             }
             _ => Thrown::Failed,
         }
     }
+}
+
+/// `frame` (made ready as `picture`) without `backdrop`, whose strongest feature is
+/// `strongest`; `None` when the sizes differ or it leaves a hole: where the backdrop holds
+/// more light than the frame (the frame's own light left out: beside a hole it would pull
+/// the hole's measuring window negative) by a share of that feature's light.
+fn taken_off(
+    backdrop: &Backdrop,
+    strongest: &Beam,
+    frame: &Frame,
+    picture: &Picture,
+) -> Option<Picture> {
+    let clean = backdrop.removed_from(frame, picture)?;
+    let own = (OWN_LIGHT_NOISES * clean.noise()) as f32;
+    let negated: Vec<f32> = clean
+        .light()
+        .iter()
+        .map(|&v| if v > own { 0.0 } else { -v })
+        .collect();
+    let holes = find_beams(&clean.with_light(negated, clean.noise(), clean.noise_map().clone()));
+    let hole = holes
+        .first()
+        .is_some_and(|h| h.signal >= HOLE_SHARE * strongest.signal);
+    (!hole).then_some(clean)
 }
 
 #[cfg(test)]
@@ -290,12 +333,30 @@ mod tests {
         let beams = find_beams(&clean);
         assert_eq!(beams.len(), 1, "{beams:?}");
         assert!(distance(beams[0].centre, [200.0, 230.0]) < 1.0, "{beams:?}");
-        // The other place learned nothing.
-        let other_place = frame(Some([200.0, 230.0]), STRAY, 3);
+    }
+
+    #[test]
+    fn another_place_borrows_a_backdrop_only_where_its_light_shows_the_same() {
+        let mut backdrops = Backdrops::new(3);
+        let throw = thrown(&mut backdrops, [190.0, 200.0]);
         assert_eq!(
-            backdrops.picture(1, &other_place).light(),
-            Picture::new(&other_place).light()
+            backdrops.learn(&throw, &frame(Some([520.0, 150.0]), STRAY, 2)),
+            Thrown::Learned
         );
+        // Place 1 shows the stray light where place 0 did (fixed to the camera): it
+        // borrows the backdrop, and the beam touching the stray is found alone.
+        let clean = backdrops.picture(1, &frame(Some([200.0, 230.0]), STRAY, 3));
+        let beams = find_beams(&clean);
+        assert_eq!(beams.len(), 1, "{beams:?}");
+        assert!(distance(beams[0].centre, [200.0, 230.0]) < 1.0, "{beams:?}");
+        assert_eq!(backdrops.learned().collect::<Vec<_>>(), vec![0, 1]);
+        // Place 2 shows its own stray light elsewhere: nothing is borrowed, nothing taken off.
+        let elsewhere = frame(Some([400.0, 150.0]), [240.0, 346.0], 4);
+        assert_eq!(
+            backdrops.picture(2, &elsewhere).light(),
+            Picture::new(&elsewhere).light()
+        );
+        assert_eq!(backdrops.learned().collect::<Vec<_>>(), vec![0, 1]);
     }
 
     #[test]
