@@ -95,6 +95,60 @@ fn a_bench_writes_results_summary_charts_and_transcripts() {
 }
 
 #[test]
+fn a_resumed_bench_reads_back_finished_runs_and_runs_the_rest() {
+    let out = tempfile::tempdir().unwrap();
+    let sweep = SweepSpec::parse("noise=2.5,10").unwrap();
+    let first = plan(
+        out.path(),
+        vec![TaskKind::Cavity],
+        vec![0, 1],
+        vec![sweep.clone()],
+    );
+    let earlier = run_bench(&first, &ProgressBar::hidden()).unwrap();
+    assert_eq!(earlier.records.len(), 4);
+    let runs = out.path().join("runs");
+    // One run was cut short (no summary), one summary was damaged.
+    std::fs::remove_file(runs.join("noise=10/cavity-random-seed1/summary.json")).unwrap();
+    std::fs::write(runs.join("noise=2.5/cavity-random-seed1/summary.json"), "{").unwrap();
+
+    let mut again = first.clone();
+    again.options.resume = true;
+    again.seeds = vec![0, 1, 2];
+    let resumed = run_bench(&again, &ProgressBar::hidden()).unwrap();
+    let record = |value: f64, seed: u64| {
+        resumed
+            .records
+            .iter()
+            .find(|r| r.setting.unwrap().value == value && r.summary.seed == seed)
+            .unwrap()
+    };
+    for value in [2.5, 10.0] {
+        assert!(record(value, 0).elapsed_s.is_none(), "read back");
+        assert!(record(value, 1).elapsed_s.is_some(), "run again");
+        assert!(record(value, 2).elapsed_s.is_some(), "new");
+        let before = earlier
+            .records
+            .iter()
+            .find(|r| r.setting.unwrap().value == value && r.summary.seed == 0)
+            .unwrap();
+        assert_eq!(record(value, 0).summary, before.summary);
+    }
+    assert!(
+        runs.join("noise=10/cavity-random-seed1/summary.json")
+            .is_file()
+    );
+    let csv = std::fs::read_to_string(out.path().join("results.csv")).unwrap();
+    assert_eq!(csv.lines().count(), 7, "{csv}");
+
+    // Another scenario in the same folder: nothing is read back.
+    let mut other = again.clone();
+    Arc::make_mut(&mut other.scenario).tasks.cavity.budget = 5;
+    let rerun = run_bench(&other, &ProgressBar::hidden()).unwrap();
+    assert!(rerun.records.iter().all(|r| r.elapsed_s.is_some()));
+    assert!(rerun.records.iter().all(|r| r.summary.budget == 5));
+}
+
+#[test]
 fn a_sweep_writes_one_group_per_value_and_its_chart() {
     let out = tempfile::tempdir().unwrap();
     let sweep = SweepSpec::parse("artefact_brightness=0,3").unwrap();

@@ -6,6 +6,7 @@
 pub mod charts;
 pub mod report;
 pub mod results;
+pub mod resume;
 pub mod sweep;
 
 use std::path::PathBuf;
@@ -45,8 +46,9 @@ pub struct RunRecord {
     pub summary: RunSummary,
     pub setting: Option<Setting>,
     pub out_dir: Option<PathBuf>,
-    /// Real time the run took on this machine, s.
-    pub elapsed_s: f64,
+    /// Real time the run took on this machine, s (`None`: read back from an earlier
+    /// bench, see [`MatrixOptions::resume`]).
+    pub elapsed_s: Option<f64>,
 }
 
 /// How the matrix runs.
@@ -61,6 +63,8 @@ pub struct MatrixOptions {
     pub vlm: Option<VlmOptions>,
     /// The live monitor showing the matrix, when one is served.
     pub monitor: Option<Hub>,
+    /// Read back runs an earlier bench finished in the same folders (see [`resume`]).
+    pub resume: bool,
 }
 
 impl Default for MatrixOptions {
@@ -71,6 +75,7 @@ impl Default for MatrixOptions {
             save_frames: false,
             vlm: None,
             monitor: None,
+            resume: false,
         }
     }
 }
@@ -151,6 +156,19 @@ pub fn run_matrix(
 
 /// Runs one spec on its own simulated rig.
 pub async fn run_one(spec: &RunSpec, options: &MatrixOptions) -> anyhow::Result<RunRecord> {
+    if options.resume
+        && let Some(summary) = spec
+            .out_dir
+            .as_deref()
+            .and_then(|dir| resume::finished(spec, dir))
+    {
+        return Ok(RunRecord {
+            summary,
+            setting: spec.setting,
+            out_dir: spec.out_dir.clone(),
+            elapsed_s: None,
+        });
+    }
     let started = Instant::now();
     let scenario = spec.scenario.as_ref();
     let brief = TaskBrief::new(spec.task, &scenario.tasks, scenario.geometry(spec.task));
@@ -190,7 +208,7 @@ pub async fn run_one(spec: &RunSpec, options: &MatrixOptions) -> anyhow::Result<
         summary,
         setting: spec.setting,
         out_dir: spec.out_dir.clone(),
-        elapsed_s: started.elapsed().as_secs_f64(),
+        elapsed_s: Some(started.elapsed().as_secs_f64()),
     })
 }
 

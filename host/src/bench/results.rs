@@ -163,7 +163,7 @@ pub fn write_csv(path: &Path, records: &[RunRecord]) -> anyhow::Result<()> {
             .collect();
         let _ = writeln!(
             text,
-            "{},{},{},{},{},{},{},{},{},{},{},{},{:.3},{:.3},{:.3},{:.3},{},{:.3},{}",
+            "{},{},{},{},{},{},{},{},{},{},{},{},{:.3},{:.3},{:.3},{:.3},{},{},{}",
             record.setting.map(|x| x.knob.name()).unwrap_or_default(),
             record
                 .setting
@@ -184,7 +184,7 @@ pub fn write_csv(path: &Path, records: &[RunRecord]) -> anyhow::Result<()> {
             s.agent_time_s,
             s.wall_clock_s,
             milestones.join(","),
-            record.elapsed_s,
+            opt(record.elapsed_s),
             csv_field(s.failure.as_deref().unwrap_or_default()),
         );
     }

@@ -59,6 +59,11 @@ pub struct BenchArgs {
     /// Start even when the estimated model cost of the vlm runs is large.
     #[arg(long)]
     yes: bool,
+    /// Read back the runs an earlier bench finished in --out (a run folder holding its
+    /// summary.json and this very scenario) instead of running them again: a stopped
+    /// sweep picks up where it stopped. Their real time is left blank in results.csv.
+    #[arg(long)]
+    resume: bool,
     #[command(flatten)]
     monitor: MonitorArgs,
     #[command(flatten)]
@@ -174,6 +179,7 @@ pub async fn run(args: BenchArgs) -> anyhow::Result<()> {
             save_frames: args.frames,
             vlm: vlm.clone(),
             monitor: hub,
+            resume: args.resume,
         },
         sweeps,
     };

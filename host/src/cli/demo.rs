@@ -52,6 +52,7 @@ pub async fn run(args: DemoArgs) -> anyhow::Result<()> {
         save_frames: true,
         vlm: None,
         monitor: None,
+        resume: false,
     };
     eprintln!(
         "demo: {} on the three tasks, seed {}, motors over {}",

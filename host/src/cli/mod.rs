@@ -18,7 +18,7 @@ mod replay;
 mod run;
 mod status;
 
-pub use run::record_scenario;
+pub use run::{SCENARIO_FILE, record_scenario};
 
 use clap::{Parser, Subcommand};
 
