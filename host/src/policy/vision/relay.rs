@@ -10,8 +10,7 @@
 //! the bench did not give it, the far response is measured there), and centres it with
 //! that response, refined by Broyden updates. Features that stay put while the mirror
 //! tilts are stray light, remembered per station (so is all that shows once tilts adding
-//! up to the longest probe moved nothing, and the near servo starts again), and at every
-//! station once two others showed it at the same place of the sensor; where a
+//! up to the longest probe moved nothing, and the near servo starts again); where a
 //! station shows other strong light beside the spot, the spot is thrown clear of itself once per visit and back, and the
 //! station's stationary light, learned from the two frames, is taken off every later frame
 //! there (see `backdrops`). A near servo that keeps returning to the same tilt settles for
@@ -95,10 +94,6 @@ const MAX_THROWS: usize = 3;
 
 /// A stationary feature is remembered within this many beam radii.
 const STRAY_RADII: f64 = 0.5;
-
-/// Stray light remembered at the same place of the sensor at this many other stations is
-/// taken to be fixed to the camera, and stray at every station.
-const CAMERA_STRAY_STATIONS: usize = 2;
 
 /// What the agent is doing for the current mirror.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -342,11 +337,18 @@ impl RelayAgent {
     /// light; after a tilt at the same station, what moved is the beam (what stayed is
     /// remembered as stray); otherwise the strongest remaining feature.
     fn find_spot(&mut self, view: &View) -> Option<Beam> {
-        let radius = self.spot_radius(view);
+        let radius = self
+            .radius
+            .unwrap_or(0.05 * view.size()[0].min(view.size()[1]));
         let candidates: Vec<Beam> = view
             .beams
             .iter()
-            .filter(|b| !self.on_stray(b, radius))
+            .filter(|b| {
+                !self.stray.iter().any(|(s, p)| {
+                    *s == self.station
+                        && distance(*p, b.centre) < STRAY_RADII * radius.max(b.size())
+                })
+            })
             .copied()
             .collect();
         let Some((before, station, tilts)) = &self.previous else {
@@ -368,11 +370,9 @@ impl RelayAgent {
                     // Tilts adding up to the longest probe moved nothing: all that shows is
                     // stray light, and the servo that steered by it starts again
                     // (searching, the beam unseen).
-                    let stayed = stationary_pairs(&before.beams, &view.beams, steady)
-                        .into_iter()
-                        .map(|(i, _)| before.beams[i].centre)
-                        .collect();
-                    self.remember_stray(stayed, radius);
+                    for (i, _) in stationary_pairs(&before.beams, &view.beams, steady) {
+                        self.stray.push((self.station, before.beams[i].centre));
+                    }
                     self.still_swing = 0.0;
                     self.steered_by_stray = true;
                     return None;
@@ -387,70 +387,20 @@ impl RelayAgent {
                 .filter(|seen| seen.whole && seen.beam.signal >= MOVED_SHARE * strongest_light)
             {
                 // Something moved with the tilt: what stayed is stray light.
-                let stayed = stationary_pairs(&before.beams, &view.beams, steady)
-                    .into_iter()
-                    .map(|(i, _)| before.beams[i].centre)
-                    .collect();
-                self.remember_stray(stayed, radius);
+                for (i, _) in stationary_pairs(&before.beams, &view.beams, steady) {
+                    let p = before.beams[i].centre;
+                    if !self
+                        .stray
+                        .iter()
+                        .any(|(s, q)| *s == self.station && distance(*q, p) < STRAY_RADII * radius)
+                    {
+                        self.stray.push((self.station, p));
+                    }
+                }
                 return Some(seen.beam);
             }
         }
         strongest(&candidates)
-    }
-
-    /// The spot's radius, px: as last seen whole, else a twentieth of `view`'s shorter side.
-    fn spot_radius(&self, view: &View) -> f64 {
-        self.radius
-            .unwrap_or(0.05 * view.size()[0].min(view.size()[1]))
-    }
-
-    /// Remembers features at `places` as this station's stray light (once each).
-    fn remember_stray(&mut self, places: Vec<Vec2>, radius: f64) {
-        for p in places {
-            if !self
-                .stray
-                .iter()
-                .any(|(s, q)| *s == self.station && distance(*q, p) < STRAY_RADII * radius)
-            {
-                self.stray.push((self.station, p));
-            }
-        }
-    }
-
-    /// Remembers as stray light what stayed put while a throw moved the spot clear: the
-    /// station's backdrop takes it off later frames here, and elsewhere its place tells
-    /// light fixed to the camera.
-    fn remember_backdrop_light(&mut self, after: &Frame) {
-        let Some((before, _, _)) = &self.previous else {
-            return;
-        };
-        let after = View::new(after);
-        let radius = self.spot_radius(&after);
-        let stayed = stationary_pairs(&before.beams, &after.beams, 0.1 * radius)
-            .into_iter()
-            .map(|(i, _)| before.beams[i].centre)
-            .collect();
-        self.remember_stray(stayed, radius);
-    }
-
-    /// Whether `beam` lies on stray light remembered at this station, or on light that
-    /// stayed put at the same place of the sensor at two other stations: light fixed to
-    /// the camera (a ghost of its window, a lit speck of dust) shows wherever it goes.
-    fn on_stray(&self, beam: &Beam, radius: f64) -> bool {
-        let reach = STRAY_RADII * radius.max(beam.size());
-        let mut elsewhere: Vec<usize> = Vec::new();
-        for (station, p) in &self.stray {
-            if distance(*p, beam.centre) >= reach {
-                continue;
-            }
-            if *station == self.station {
-                return true;
-            }
-            if !elsewhere.contains(station) {
-                elsewhere.push(*station);
-            }
-        }
-        elsewhere.len() >= CAMERA_STRAY_STATIONS
     }
 
     /// How far the current mirror was tilted since the cumulative tilts `then`, steps
@@ -483,7 +433,6 @@ impl RelayAgent {
             let outcome = self.backdrops.learn(&throw, frame);
             if outcome == Thrown::Learned {
                 self.forget_sightings();
-                self.remember_backdrop_light(frame);
             }
             let further = [0, 1].map(|a| self.command_of(self.mirror)[a] + throw.step[a]);
             let bound = f64::from(self.limits.max_cumulative);
