@@ -128,10 +128,28 @@ impl Beam {
     }
 }
 
+/// When separate bright regions are parts of one beam.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Joining {
+    /// Cores near each other and a dark valley between them: in a frame, beams side by
+    /// side stay apart however their tails overlap.
+    AcrossDarkValley,
+    /// Cores near each other: on one side of a frames' difference, which holds what one
+    /// moved beam brought or left (a crescent that etalon texture breaks into pieces with
+    /// no dark line between them).
+    Near,
+}
+
 /// Beams in `picture`, strongest first, found on blocks averaged with their eight
 /// neighbours (12 px across: compact beams stay apart).
 pub fn find_beams(picture: &Picture) -> Vec<Beam> {
-    beams_in(picture, 1)
+    beams_in(picture, 1, Joining::AcrossDarkValley)
+}
+
+/// What one side of a frames' difference holds (`picture` the light that came, or that
+/// went), strongest first: as [`find_beams`], with regions joined by nearness alone.
+pub fn find_changed(picture: &Picture) -> Vec<Beam> {
+    beams_in(picture, 1, Joining::Near)
 }
 
 /// Faint broad beams of up to about `radius` px in `picture` (where [`find_beams`] finds
@@ -144,7 +162,7 @@ pub fn find_faint_beams(picture: &Picture, radius: f64) -> Vec<Beam> {
     let widest = (radius / (2 * BLOCK) as f64).round().max(2.0) as usize;
     let mut reach = 2;
     loop {
-        let beams = beams_in(picture, reach);
+        let beams = beams_in(picture, reach, Joining::Near);
         if !beams.is_empty() || reach >= widest {
             return beams;
         }
@@ -152,11 +170,12 @@ pub fn find_faint_beams(picture: &Picture, radius: f64) -> Vec<Beam> {
     }
 }
 
-/// Beams in `picture` found on blocks averaged with those within `reach` of them.
-fn beams_in(picture: &Picture, reach: usize) -> Vec<Beam> {
+/// Beams in `picture` found on blocks averaged with those within `reach` of them, regions
+/// joined into beams by `joining`.
+fn beams_in(picture: &Picture, reach: usize, joining: Joining) -> Vec<Beam> {
     let grid = Grid::new(picture, reach);
     let regions = grid.regions();
-    let groups = join_regions(picture, &grid, &regions);
+    let groups = join_regions(picture, &grid, &regions, joining);
     let owner = grid.partition(&regions, &groups);
     let mut beams: Vec<Beam> = groups
         .iter()
@@ -517,8 +536,14 @@ fn box_means(values: &[f32], bw: usize, bh: usize, reach: usize) -> Vec<f32> {
 }
 
 /// Groups regions that belong to one beam: cores close relative to their distance, peaks
-/// alike. Each group lists region indices.
-fn join_regions(picture: &Picture, grid: &Grid, regions: &[Region]) -> Vec<Vec<usize>> {
+/// alike, and with [`Joining::AcrossDarkValley`] a dark valley between them. Each group
+/// lists region indices.
+fn join_regions(
+    picture: &Picture,
+    grid: &Grid,
+    regions: &[Region],
+    joining: Joining,
+) -> Vec<Vec<usize>> {
     let mut parent: Vec<usize> = (0..regions.len()).collect();
     fn root(parent: &mut [usize], mut i: usize) -> usize {
         while parent[i] != i {
@@ -535,7 +560,7 @@ fn join_regions(picture: &Picture, grid: &Grid, regions: &[Region]) -> Vec<Vec<u
             }
             let distance = (ra.centre[0] - rb.centre[0]).hypot(ra.centre[1] - rb.centre[1]);
             if core_gap(grid, ra, rb, JOIN_GAP_SHARE * distance)
-                && dark_between(picture, grid, ra, rb)
+                && (joining == Joining::Near || dark_between(picture, grid, ra, rb))
             {
                 let (x, y) = (root(&mut parent, a), root(&mut parent, b));
                 parent[x] = y;

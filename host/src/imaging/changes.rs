@@ -10,7 +10,7 @@
 //! shows nothing, on the difference without its own level (the two frames' backgrounds
 //! are measured apart).
 
-use super::beams::{Beam, find_beams, find_faint_beams};
+use super::beams::{Beam, find_changed, find_faint_beams};
 use super::cells::CellSums;
 use super::picture::Picture;
 
@@ -99,7 +99,7 @@ fn changes_found(
                 noise_map.clone(),
             )
         };
-        let beams = find_beams(&picture(&difference));
+        let beams = find_changed(&picture(&difference));
         match faint {
             Some(radius) if beams.is_empty() => {
                 let levelled = levelled.get_or_init(|| without_level(&difference, w, h));
