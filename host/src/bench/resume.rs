@@ -8,11 +8,11 @@ use std::path::Path;
 
 use super::RunSpec;
 use crate::cli::SCENARIO_FILE;
-use crate::run::RunSummary;
+use crate::run::{RunSummary, SUMMARY_FILE};
 
 /// The summary of `spec`'s run finished in `dir` by an earlier bench, when there is one.
 pub fn finished(spec: &RunSpec, dir: &Path) -> Option<RunSummary> {
-    let summary_path = dir.join("summary.json");
+    let summary_path = dir.join(SUMMARY_FILE);
     let summary_bytes = std::fs::read(&summary_path).ok()?;
     let recorded = std::fs::read_to_string(dir.join(SCENARIO_FILE)).ok()?;
     let wanted = toml::to_string(spec.scenario.as_ref()).ok()?;

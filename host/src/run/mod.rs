@@ -12,7 +12,7 @@ use std::time::Instant;
 use anyhow::Context;
 
 pub use summary::{RunSummary, is_success, summarize};
-pub use transcript::{StepRecord, Transcript};
+pub use transcript::{SUMMARY_FILE, StepRecord, Transcript};
 
 use crate::monitor::RunMonitor;
 use crate::policy::{Feedback, Observation, Policy, PrivilegedObjective};

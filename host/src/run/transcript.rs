@@ -17,6 +17,9 @@ use crate::policy::Decision;
 use crate::rig::{ControllerView, Executed, Score};
 use crate::task::{Action, TaskKind};
 
+/// The file a finished run's summary is written to, in its folder.
+pub const SUMMARY_FILE: &str = "summary.json";
+
 /// One evaluation, or one rejected action, as recorded.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct StepRecord {
@@ -188,7 +191,7 @@ impl Transcript {
             object.insert("type".into(), "end".into());
         }
         self.line(&value)?;
-        let path = self.dir.join("summary.json");
+        let path = self.dir.join(SUMMARY_FILE);
         std::fs::write(&path, serde_json::to_vec_pretty(summary)?)
             .with_context(|| format!("cannot write {}", path.display()))
     }

@@ -92,15 +92,14 @@ impl Backdrops {
     /// that leaves a hole is forgotten).
     pub fn picture(&mut self, place: usize, frame: &Frame) -> Picture {
         let picture = Picture::new(frame);
-        let Some(slot) = self.places.get(place) else {
+        let Some(slot) = self.places.get_mut(place) else {
             return picture;
         };
-        if slot.backdrop.is_none() && !slot.borrow_tried {
-            self.borrow(place, frame, &picture);
-        }
-        let slot = &mut self.places[place];
         let Some((backdrop, strongest)) = &slot.backdrop else {
-            return picture;
+            if slot.borrow_tried {
+                return picture;
+            }
+            return self.borrow(place, frame, &picture).unwrap_or(picture);
         };
         match taken_off(backdrop, strongest, frame, &picture) {
             Some(clean) => clean,
@@ -114,25 +113,24 @@ impl Backdrops {
     /// Gives `place` a copy of another place's backdrop (the latest learned first) that
     /// holds light beside the beam (its strongest feature has a share of the frame's
     /// strongest one's light) and leaves no hole in `frame`: all its light shows there.
-    fn borrow(&mut self, place: usize, frame: &Frame, picture: &Picture) {
+    /// Returns `frame` without it, when one was borrowed.
+    fn borrow(&mut self, place: usize, frame: &Frame, picture: &Picture) -> Option<Picture> {
         self.places[place].borrow_tried = true;
-        let lenders: Vec<&(Backdrop, Beam)> = self
+        if self.places.iter().all(|p| p.backdrop.is_none()) {
+            return None;
+        }
+        let brightest = find_beams(picture).first().map_or(0.0, |b| b.signal);
+        let (lent, clean) = self
             .places
             .iter()
             .rev()
             .filter_map(|p| p.backdrop.as_ref())
-            .collect();
-        if lenders.is_empty() {
-            return;
-        }
-        let brightest = find_beams(picture).first().map_or(0.0, |b| b.signal);
-        let borrowed = lenders.into_iter().find(|(backdrop, strongest)| {
-            strongest.signal >= BESIDE_SHARE * brightest
-                && taken_off(backdrop, strongest, frame, picture).is_some()
-        });
-        if let Some(borrowed) = borrowed.cloned() {
-            self.places[place].backdrop = Some(borrowed);
-        }
+            .filter(|(_, strongest)| strongest.signal >= BESIDE_SHARE * brightest)
+            .find_map(|lent| {
+                taken_off(&lent.0, &lent.1, frame, picture).map(|clean| (lent.clone(), clean))
+            })?;
+        self.places[place].backdrop = Some(lent);
+        Some(clean)
     }
 
     /// The places with a backdrop.

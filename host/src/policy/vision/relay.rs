@@ -11,9 +11,9 @@
 //! that response, refined by Broyden updates. Features that stay put while the mirror
 //! tilts are stray light, remembered per station (so is all that shows once tilts adding
 //! up to the longest probe moved nothing, and the near servo starts again); where a
-//! station shows other strong light beside the spot, the spot is thrown clear of itself once per visit and back, and the
-//! station's stationary light, learned from the two frames, is taken off every later frame
-//! there (see `backdrops`). A near servo that keeps returning to the same tilt settles for
+//! station shows other strong light beside the spot, the spot is thrown clear of itself
+//! once per visit and back, and the station's stationary light, learned from the two
+//! frames, is taken off every later frame there (see `backdrops`). A near servo that keeps returning to the same tilt settles for
 //! its best spot within the far station's tolerance. Light lost at the far station is looked
 //! for there in views around the expected place (its response is known), then by going
 //! back to the near station. At C8, with a centred compact spot, it declares done.
