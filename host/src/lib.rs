@@ -3,7 +3,9 @@
 //! binary is a thin wrapper around [`cli`].
 
 pub mod bench;
+pub mod bounds;
 pub mod cli;
+pub mod console;
 pub mod flash;
 pub mod imaging;
 pub mod lab;

@@ -1,4 +1,5 @@
-//! Diagnostic logging to stderr through `tracing`, filtered by `-v` or `RUST_LOG`.
+//! Diagnostic logging to stderr through `tracing`, filtered by `-v` or `RUST_LOG`;
+//! coloured only on a terminal and never with `NO_COLOR` set.
 
 use tracing_subscriber::EnvFilter;
 
@@ -14,6 +15,7 @@ pub fn init(verbosity: u8) {
     let _ = tracing_subscriber::fmt()
         .with_env_filter(filter)
         .with_writer(std::io::stderr)
+        .with_ansi(crate::console::colours_on_stderr())
         .with_target(false)
         .try_init();
 }

@@ -406,3 +406,90 @@ fn the_documented_example_rig_files_are_valid() {
         assert_eq!(rig.task.name(), task);
     }
 }
+
+#[tokio::test(flavor = "multi_thread")]
+async fn a_run_whose_camera_stops_answering_ends_on_record_and_exits_non_zero() {
+    const BIN: &str = env!("CARGO_BIN_EXE_optalign");
+    let dir = tempfile::tempdir().unwrap();
+    let (_peer, url) = peer(4, 0).await;
+    let first = dir.path().join("first.png");
+    let rendered = tokio::process::Command::new(BIN)
+        .args(["render", "cavity", "--seed", "0", "--out"])
+        .arg(&first)
+        .output()
+        .await
+        .unwrap();
+    assert!(rendered.status.success(), "{rendered:?}");
+    // The camera gives two frames (the rig's check at connect and the run's first), then
+    // hangs: a USB camera that stopped answering.
+    let script = dir.path().join("camera.sh");
+    std::fs::write(
+        &script,
+        format!(
+            "if [ -e {taken}2 ]; then exec sleep 30; fi\n\
+             if [ -e {taken}1 ]; then touch {taken}2; else touch {taken}1; fi\n\
+             cp {first} \"$1\"\n",
+            taken = dir.path().join("taken").display(),
+            first = first.display()
+        ),
+    )
+    .unwrap();
+    let rig = dir.path().join("rig.toml");
+    std::fs::write(
+        &rig,
+        format!(
+            r#"task = "cavity"
+[[controller]]
+name = "incoupler"
+url = "{url}"
+key_env = "OPTALIGN_LAB_KEY"
+[axes]
+x = {{ controller = "incoupler", axis = 0 }}
+y = {{ controller = "incoupler", axis = 1 }}
+[camera]
+kind = "command"
+argv = ["sh", "{}", "{{output}}"]
+timeout_s = 1
+[settle]
+after_motor_s = 0
+after_camera_s = 0
+[scoring]
+cavity_aligned = [0, 0]
+"#,
+            script.display()
+        ),
+    )
+    .unwrap();
+    let out = dir.path().join("run");
+    let output = tokio::process::Command::new(BIN)
+        .args(["run", "cavity", "--policy", "vision", "--rig"])
+        .arg(&rig)
+        .arg("--out")
+        .arg(&out)
+        .env("OPTALIGN_LAB_KEY", KEY)
+        .env("RUST_LOG", "error")
+        .output()
+        .await
+        .unwrap();
+    let printed = String::from_utf8_lossy(&output.stderr);
+    assert_eq!(output.status.code(), Some(1), "{printed}");
+    assert!(printed.contains("did not finish within 1s"), "{printed}");
+    let transcript = std::fs::read_to_string(out.join("transcript.jsonl")).unwrap();
+    let kinds: Vec<String> = transcript
+        .lines()
+        .map(|line| serde_json::from_str::<serde_json::Value>(line).unwrap()["type"].to_string())
+        .collect();
+    // The first frame came, the first move ran, its frame never did.
+    assert_eq!(kinds[..2], ["\"run\"", "\"start\""]);
+    assert_eq!(kinds[kinds.len() - 2..], ["\"failure\"", "\"end\""]);
+    let summary: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("summary.json")).unwrap()).unwrap();
+    assert_eq!(summary["ended_by"], "rig");
+    assert!(
+        summary["failure"]
+            .as_str()
+            .unwrap()
+            .contains("camera command \"sh\" did not finish within 1s"),
+        "{summary}"
+    );
+}

@@ -162,6 +162,61 @@ async fn a_run_with_corrections_and_refusals_replays_exactly() {
 }
 
 #[tokio::test]
+async fn a_run_whose_model_never_answers_usably_exits_non_zero_with_every_reply_on_record() {
+    // An overlong reply (cut before it is kept) and four that are not JSON: five unusable
+    // replies in a row end the run.
+    let mut script = vec![Scripted::Reply("x".repeat(300_000))];
+    script.extend((0..4).map(|n| Scripted::Reply(format!("no JSON here, try {n}"))));
+    let fake = FakeLlm::start(config(TaskKind::Michelson, script))
+        .await
+        .unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("run");
+    let output = run_vlm(TaskKind::Michelson, &fake, &out).await;
+    let printed = text(&output);
+    assert_eq!(output.status.code(), Some(1), "{printed}");
+    assert!(
+        printed.contains("the run did not run to its end"),
+        "{printed}"
+    );
+    assert!(printed.contains("failed 5 times in a row"), "{printed}");
+    let lines = transcript(&out);
+    let kinds: Vec<&str> = lines.iter().map(|l| l["type"].as_str().unwrap()).collect();
+    assert_eq!(kinds, ["run", "start", "failure", "end"]);
+    let failure = &lines[2];
+    assert_eq!(failure["by"], "policy");
+    let exchanges = failure["record"]["exchanges"].as_array().unwrap();
+    assert_eq!(exchanges.len(), 5, "every unusable reply is on record");
+    let first = &exchanges[0];
+    assert!(
+        first["problem"]
+            .as_str()
+            .unwrap()
+            .contains("300000 bytes long"),
+        "{}",
+        first["problem"]
+    );
+    assert_eq!(first["completion"]["text"].as_str().unwrap().len(), 65536);
+    assert!(exchanges[4]["completion"]["text"] == "no JSON here, try 3");
+    let summary: Value =
+        serde_json::from_slice(&std::fs::read(out.join("summary.json")).unwrap()).unwrap();
+    assert_eq!(summary["ended_by"], "policy");
+    assert!(
+        summary["failure"]
+            .as_str()
+            .unwrap()
+            .contains("policy failed")
+    );
+    // The overlong reply went back to the model cut, not whole.
+    let whole = "x".repeat(65_537);
+    assert!(
+        fake.requests()
+            .iter()
+            .all(|r| !r.body.to_string().contains(&whole))
+    );
+}
+
+#[tokio::test]
 async fn without_a_key_the_run_fails_at_once_naming_the_variable() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("run");

@@ -367,7 +367,12 @@ async fn persistent_server_errors_end_the_run_with_the_transcript_intact() {
         .iter()
         .map(|l| l["type"].as_str().unwrap())
         .collect();
-    assert_eq!(kinds, ["run", "start", "step", "end"]);
+    assert_eq!(kinds, ["run", "start", "step", "failure", "end"]);
+    assert_eq!(outcome.lines[3]["by"], "policy");
+    assert_eq!(
+        outcome.summary.ended_by,
+        Some(optalign::run::EndedBy::Policy)
+    );
     assert_eq!(outcome.fake.requests().len(), 4);
 }
 

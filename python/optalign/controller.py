@@ -45,12 +45,14 @@ class Controller:
     def status(self) -> dict:
         """The controller's identity and the state of every axis (position, target,
         moving, faults, limits, ...), plus the session: whether this link is
-        authenticated and whether the emergency stop is latched."""
+        authenticated and whether the emergency stop is latched. The same report as
+        ``optalign status --json`` (schema ``optalign.status/1``, docs/protocol.md):
+        faults and the boot record in words, e.g. ``"faults": ["position-lost"]``."""
         return json.loads(self._native.status_json())
 
     def positions(self) -> Dict[int, int]:
         """The logical position of every axis, in steps."""
-        axes = self.status()["status"]["axes"]
+        axes = self.status()["axes"]
         return {index: axis["position"] for index, axis in enumerate(axes)}
 
     def move_to(self, targets: Targets, timeout: float = 60.0) -> dict:

@@ -148,12 +148,10 @@ impl Controller {
     fn status_json(&self, py: Python<'_>) -> PyResult<String> {
         self.call(py, async |client| {
             let status = client.status().await.map_err(|e| self.explained(e))?;
-            let value = serde_json::json!({
-                "controller": client.endpoint().to_string(),
-                "identity": client.identity(),
-                "status": status,
-            });
-            Ok(value.to_string())
+            let endpoint = client.endpoint().to_string();
+            let report =
+                optalign::link::report::status_report(&endpoint, &client.identity(), &status);
+            Ok(report.to_string())
         })
     }
 

@@ -111,11 +111,10 @@ pub fn bench_json(
         .iter()
         .map(|task| parse_task(task))
         .collect::<PyResult<Vec<_>>>()?;
-    if tasks.is_empty() || policies.is_empty() || seeds.is_empty() {
-        return Err(invalid(
-            "a bench needs at least one task, one policy and one seed",
-        ));
+    if tasks.is_empty() || policies.is_empty() {
+        return Err(invalid("a bench needs at least one task and one policy"));
     }
+    optalign::bench::check_seeds(&seeds).map_err(|error| invalid(format!("seeds: {error}")))?;
     for policy in &policies {
         check_policy(policy)?;
     }
@@ -126,8 +125,12 @@ pub fn bench_json(
         motors: parse_motors(motors)?,
         ..MatrixOptions::default()
     };
-    if options.jobs == 0 {
-        return Err(invalid("jobs must be at least 1"));
+    let cores = optalign::bench::default_jobs();
+    if !(1..=cores).contains(&options.jobs) {
+        return Err(invalid(format!(
+            "jobs must be from 1 to {cores} (the cores), not {}",
+            options.jobs
+        )));
     }
     let records = py
         .detach(|| run_matrix(&specs, &options, &ProgressBar::hidden()))

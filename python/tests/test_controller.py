@@ -40,7 +40,7 @@ def test_moves_with_the_key_end_where_they_were_sent(peer):
     assert controller.positions() == {0: 300, 1: 50, 2: -250, 3: 0}
     assert peer.shaft_positions() == [300, 50, -250, 0]
     status = controller.status()
-    assert status["status"]["session"]["authenticated"] is True
+    assert status["session"]["authenticated"] is True
 
 
 def test_the_key_may_come_from_the_environment_as_on_the_command_line(peer, monkeypatch):
@@ -50,7 +50,7 @@ def test_the_key_may_come_from_the_environment_as_on_the_command_line(peer, monk
 
 def test_without_the_key_status_is_given_but_motion_is_refused(peer):
     controller = Controller(peer.url)
-    assert controller.status()["status"]["session"]["authenticated"] is False
+    assert controller.status()["session"]["authenticated"] is False
     with pytest.raises(ControllerRefused, match="OPTALIGN_KEY") as refused:
         controller.move_to({0: 100})
     assert isinstance(refused.value.code, int)
@@ -64,7 +64,7 @@ def test_without_the_key_status_is_given_but_motion_is_refused(peer):
 def test_an_emergency_stop_from_anyone_latches_until_cleared(peer):
     keyed = Controller(peer.url, key=KEY)
     Controller(peer.url).emergency_stop()
-    assert keyed.status()["status"]["emergency_stopped"] is True
+    assert keyed.status()["emergency_stopped"] is True
     with pytest.raises(ControllerRefused, match="clear-emergency"):
         keyed.move_to({0: 100})
     keyed.clear_emergency()

@@ -106,6 +106,20 @@ fn invalid_values_name_the_field_and_reason() {
 }
 
 #[test]
+fn frames_too_large_to_render_are_refused_before_any_allocation() {
+    for table in ["michelson", "cavity", "relay.camera"] {
+        let (field, reason) = invalid(&format!("[{table}]\nwidth_px = 16384\nheight_px = 16384"));
+        assert_eq!(field, format!("{table}.width_px"));
+        assert!(
+            reason.contains("268435456 pixels; at most 25000000"),
+            "{reason}"
+        );
+    }
+    let (field, _) = invalid("[cavity]\nheight_px = 16385");
+    assert_eq!(field, "cavity.height_px");
+}
+
+#[test]
 fn defaults_round_trip_through_toml() {
     let text = toml::to_string(&Scenario::default()).unwrap();
     assert_eq!(Scenario::from_toml_str(&text).unwrap(), Scenario::default());

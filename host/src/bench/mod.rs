@@ -366,24 +366,52 @@ fn sweep_matrix(
     Ok((specs, swept_tasks, settings))
 }
 
-/// Parses a seed list: `0..10` (half-open), `3..=5`, `0,4,7`, or one number.
+/// The most seeds one list may name (a bench keeps a record per run in memory).
+pub const MAX_SEEDS: usize = 100_000;
+
+/// Parses a seed list: `0..10` (half-open), `3..=5`, `0,4,7`, or one number; at most
+/// [`MAX_SEEDS`] seeds, none named twice.
 pub fn parse_seeds(text: &str) -> Result<Vec<u64>, String> {
     let number = |s: &str| {
         s.trim()
             .parse::<u64>()
             .map_err(|_| format!("{:?} is not a seed number", s.trim()))
     };
+    let too_many = || format!("{text:?} names more than {MAX_SEEDS} seeds");
+    let range = |from: u64, past: Option<u64>| -> Result<Vec<u64>, String> {
+        let past = past.ok_or_else(too_many)?;
+        if past.saturating_sub(from) > MAX_SEEDS as u64 {
+            return Err(too_many());
+        }
+        Ok((from..past).collect())
+    };
     let seeds: Vec<u64> = if let Some((from, to)) = text.split_once("..=") {
-        (number(from)?..=number(to)?).collect()
+        range(number(from)?, number(to)?.checked_add(1))?
     } else if let Some((from, to)) = text.split_once("..") {
-        (number(from)?..number(to)?).collect()
+        range(number(from)?, Some(number(to)?))?
     } else {
         text.split(',').map(number).collect::<Result<_, _>>()?
     };
-    if seeds.is_empty() {
-        return Err(format!("{text:?} names no seeds"));
-    }
+    check_seeds(&seeds).map_err(|error| format!("{text:?}: {error}"))?;
     Ok(seeds)
+}
+
+/// Checks a list of seeds: at least one, at most [`MAX_SEEDS`], none named twice (a seed
+/// named twice would run twice into the same run folder).
+pub fn check_seeds(seeds: &[u64]) -> Result<(), String> {
+    if seeds.is_empty() {
+        return Err("no seeds named".to_owned());
+    }
+    if seeds.len() > MAX_SEEDS {
+        return Err(format!("more than {MAX_SEEDS} seeds"));
+    }
+    let mut seen = std::collections::HashSet::with_capacity(seeds.len());
+    match seeds.iter().find(|&&seed| !seen.insert(seed)) {
+        Some(repeated) => Err(format!(
+            "seed {repeated} is named twice: each seed runs once"
+        )),
+        None => Ok(()),
+    }
 }
 
 #[cfg(test)]
@@ -396,7 +424,26 @@ mod tests {
         assert_eq!(parse_seeds("3..=5").unwrap(), vec![3, 4, 5]);
         assert_eq!(parse_seeds("0, 4,7").unwrap(), vec![0, 4, 7]);
         assert_eq!(parse_seeds("12").unwrap(), vec![12]);
-        assert!(parse_seeds("5..5").unwrap_err().contains("names no seeds"));
+        assert!(parse_seeds("5..5").unwrap_err().contains("no seeds named"));
         assert!(parse_seeds("a..3").unwrap_err().contains("\"a\""));
+    }
+
+    #[test]
+    fn seed_lists_are_bounded_and_never_repeat() {
+        for huge in [
+            "0..18446744073709551615",
+            "0..1000000000",
+            "0..=18446744073709551615",
+        ] {
+            let error = parse_seeds(huge).unwrap_err();
+            assert!(error.contains("more than"), "{huge}: {error}");
+        }
+        assert_eq!(
+            parse_seeds(&format!("0..{MAX_SEEDS}")).unwrap().len(),
+            MAX_SEEDS
+        );
+        let error = parse_seeds("0,0,0").unwrap_err();
+        assert!(error.contains("seed 0 is named twice"), "{error}");
+        assert!(parse_seeds("3, 4,3").unwrap_err().contains("seed 3"));
     }
 }

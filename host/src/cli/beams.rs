@@ -30,10 +30,10 @@ pub fn run(args: BeamsArgs) -> anyhow::Result<()> {
             "read_noise": picture.noise(),
             "beams": beams,
         });
-        println!("{}", serde_json::to_string_pretty(&report)?);
+        crate::say!("{}", serde_json::to_string_pretty(&report)?);
         return Ok(());
     }
-    println!(
+    crate::say!(
         "{}: {} x {} px, background {:.1}, read noise {:.1} gray levels, {} beam(s)",
         args.image.display(),
         frame.width(),
@@ -43,13 +43,18 @@ pub fn run(args: BeamsArgs) -> anyhow::Result<()> {
         beams.len()
     );
     if !beams.is_empty() {
-        println!(
+        crate::say!(
             "{:>3}  {:>17}  {:>7}  {:>15}  {:>6}  {:>7}  notes",
-            "#", "centre (x, y) px", "± px", "radii px", "angle", "peak"
+            "#",
+            "centre (x, y) px",
+            "± px",
+            "radii px",
+            "angle",
+            "peak"
         );
     }
     for (i, beam) in beams.iter().enumerate() {
-        println!(
+        crate::say!(
             "{:>3}  {:>8.2},{:>8.2}  {:>7.2}  {:>7.1},{:>7.1}  {:>6.1}  {:>7.1}  {}",
             i + 1,
             beam.centre[0],

@@ -39,8 +39,8 @@ pub struct BenchArgs {
     /// Output folder.
     #[arg(long, value_name = "DIR", default_value = "runs/bench")]
     out: PathBuf,
-    /// Runs in parallel [default: the number of cores].
-    #[arg(long)]
+    /// Runs in parallel, at most the number of cores [default: the number of cores].
+    #[arg(long, value_parser = parse_jobs)]
     jobs: Option<usize>,
     /// Vary a scenario knob, e.g. noise=0,5,10,20 or beam_profile=gaussian,tem01; KNOB
     /// alone runs its standard values, `all` every knob. Repeat for several knobs. Knobs:
@@ -75,6 +75,14 @@ struct SeedList(Vec<u64>);
 
 fn parse_seed_list(text: &str) -> Result<SeedList, String> {
     parse_seeds(text).map(SeedList)
+}
+
+fn parse_jobs(text: &str) -> Result<usize, String> {
+    let cores = default_jobs();
+    text.parse::<usize>()
+        .ok()
+        .filter(|jobs| (1..=cores).contains(jobs))
+        .ok_or_else(|| format!("{text:?} is not a number of jobs from 1 to {cores} (the cores)"))
 }
 
 /// The policies to run: the named ones (each must exist), or the defaults that exist.
@@ -120,7 +128,11 @@ async fn vlm_preflight(
         .ok_or_else(|| anyhow::anyhow!("--policies vlm needs --model"))?;
     vlm::preflight(&options)?;
     let pricing = vlm::fetch_pricing(&options).await.unwrap_or_else(|error| {
-        eprintln!("note: no model prices from the endpoint ({error:#})");
+        let error = format!("{error:#}");
+        eprintln!(
+            "note: no model prices from the endpoint ({})",
+            crate::console::escape_controls(&error)
+        );
         None
     });
     let mut estimate = CostEstimate::default();
@@ -174,7 +186,7 @@ pub async fn run(args: BenchArgs) -> anyhow::Result<()> {
             .map_or_else(|| "defaults".to_owned(), |p| p.display().to_string()),
         out: args.out,
         options: MatrixOptions {
-            jobs: args.jobs.unwrap_or_else(default_jobs).max(1),
+            jobs: args.jobs.unwrap_or_else(default_jobs),
             motors: args.motors,
             save_frames: args.frames,
             vlm: vlm.clone(),
@@ -194,19 +206,19 @@ pub async fn run(args: BenchArgs) -> anyhow::Result<()> {
     })
     .await??;
     let (plan, output) = output;
-    println!("{}", output.tables.trim_end());
-    println!(
+    crate::say!("{}", output.tables.trim_end());
+    crate::say!(
         "\n{} runs in {:.1} s on {} job(s)",
         output.records.len(),
         output.wall_time_s,
         plan.options.jobs
     );
     if let Some(vlm) = &vlm {
-        println!("model usage: {}", vlm.usage.total());
+        crate::say!("model usage: {}", vlm.usage.total());
     }
-    println!("results: {}", output.csv.display());
-    println!("summary: {}", output.summary.display());
-    println!(
+    crate::say!("results: {}", output.csv.display());
+    crate::say!("summary: {}", output.summary.display());
+    crate::say!(
         "charts:  {} files in {}",
         output.charts.len(),
         plan.out.join("charts").display()

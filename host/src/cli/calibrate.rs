@@ -29,12 +29,12 @@ enum Calibration {
         /// Mirror number (Michelson 1-2, cavity 1, relay 1-4).
         #[arg(long)]
         mirror: usize,
-        /// Half-width of the scan around the current position, steps.
-        #[arg(long, default_value_t = 1500)]
+        /// Half-width of the scan around the current position, steps (1 to 1,000,000).
+        #[arg(long, default_value_t = 1500, value_parser = clap::value_parser!(i32).range(1..=1_000_000))]
         span: i32,
-        /// Grid points per axis.
-        #[arg(long, default_value_t = 3)]
-        grid: usize,
+        /// Grid points per axis (2 to 21).
+        #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u8).range(2..=21))]
+        grid: u8,
         /// Calibration file to add the mirror to (default: the rig file's
         /// scoring.michelson_calibration, else response-calibration.json beside the rig file).
         #[arg(long, value_name = "FILE")]
@@ -47,11 +47,11 @@ enum Calibration {
         /// Task axis name (as in the rig file's [axes] table).
         #[arg(long)]
         axis: String,
-        /// How far the loop goes each way, steps.
-        #[arg(long, default_value_t = 300)]
+        /// How far the loop goes each way, steps (1 to 1,000,000).
+        #[arg(long, default_value_t = 300, value_parser = clap::value_parser!(i32).range(1..=1_000_000))]
         amplitude: i32,
-        /// Step between images, steps.
-        #[arg(long, default_value_t = 10)]
+        /// Step between images, steps (1 to 100,000; at most 1,000 images each way).
+        #[arg(long, default_value_t = 10, value_parser = clap::value_parser!(i32).range(1..=100_000))]
         step: i32,
         /// Write the fitted backlash into the controller's configuration and save it.
         #[arg(long)]
@@ -73,12 +73,13 @@ pub async fn run(args: CalibrateArgs) -> anyhow::Result<()> {
                 .or_else(|| file.scoring.michelson_calibration.clone())
                 .unwrap_or_else(|| beside(&rig, "response-calibration.json"));
             let mut bench = LabRig::connect(file).await?;
-            let (response, points) = calibrate_response(&mut bench, mirror, span, grid).await?;
+            let (response, points) =
+                calibrate_response(&mut bench, mirror, span, usize::from(grid)).await?;
             let frame = bench.capture().await?;
             let mut calibration = ResponseCalibration::load_or_new(&out)?;
             calibration.image_size_px = [frame.width(), frame.height()];
             let m = response.matrix_px_per_step;
-            println!(
+            crate::say!(
                 "mirror {mirror}: [[{:.4}, {:.4}], [{:.4}, {:.4}]] px/step, centre ({:.1}, {:.1}) px at {:?} steps, residual {:.2} px RMS over {} images",
                 m[0][0],
                 m[0][1],
@@ -94,7 +95,7 @@ pub async fn run(args: CalibrateArgs) -> anyhow::Result<()> {
             calibration.save(&out)?;
             let charts =
                 write_response_chart(out.parent().unwrap_or(Path::new(".")), mirror, &points)?;
-            println!("wrote {} and {}", out.display(), charts[0].display());
+            crate::say!("wrote {} and {}", out.display(), charts[0].display());
         }
         Calibration::Backlash {
             rig,
@@ -103,6 +104,11 @@ pub async fn run(args: CalibrateArgs) -> anyhow::Result<()> {
             step,
             write,
         } => {
+            anyhow::ensure!(
+                amplitude / step <= 1000,
+                "--amplitude {amplitude} with --step {step} takes {} images each way; at most 1000",
+                amplitude / step
+            );
             let file = RigFile::load(&rig)?;
             let names = task_axis_names(file.task);
             let index = names.iter().position(|n| *n == axis).with_context(|| {
@@ -115,13 +121,16 @@ pub async fn run(args: CalibrateArgs) -> anyhow::Result<()> {
             let mut bench = LabRig::connect(file).await?;
             let report = calibrate_backlash(&mut bench, index, amplitude, step).await?;
             let fit = &report.fit;
-            println!(
+            crate::say!(
                 "{axis}: backlash {:.1} ± {:.1} steps (response {:.4} px/step, residual {:.2} px RMS)",
-                fit.backlash, fit.uncertainty, fit.gain, fit.residual_rms
+                fit.backlash,
+                fit.uncertainty,
+                fit.gain,
+                fit.residual_rms
             );
             let charts =
                 write_backlash_chart(rig.parent().unwrap_or(Path::new(".")), &axis, &report)?;
-            println!("chart: {}", charts[0].display());
+            crate::say!("chart: {}", charts[0].display());
             let (client, controller_axis) = bench.controller_axis(index);
             let steps = fit.backlash.round() as u16;
             if write {
@@ -137,11 +146,11 @@ pub async fn run(args: CalibrateArgs) -> anyhow::Result<()> {
                     })
                     .await?;
                 client.command_ok(Command::SaveConfig).await?;
-                println!(
+                crate::say!(
                     "wrote backlash {steps} into the controller's axis {controller_axis} and saved it"
                 );
             } else {
-                println!(
+                crate::say!(
                     "to use it: rerun with --write, or `optalign config --controller URL set {controller_axis} backlash={steps} --save`"
                 );
             }

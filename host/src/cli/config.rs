@@ -60,10 +60,10 @@ pub async fn run(args: ConfigArgs) -> anyhow::Result<()> {
                     .iter()
                     .map(|(axis, config)| serde_json::json!({ "axis": axis, "config": config }))
                     .collect();
-                println!("{}", serde_json::to_string_pretty(&value)?);
+                crate::say!("{}", serde_json::to_string_pretty(&value)?);
             } else {
                 for (axis, config) in &configs {
-                    println!("axis {axis}: {}", describe(config));
+                    crate::say!("axis {axis}: {}", describe(config));
                 }
             }
         }
@@ -89,7 +89,7 @@ pub async fn run(args: ConfigArgs) -> anyhow::Result<()> {
                     .await
                     .map_err(explain)?;
             }
-            println!(
+            crate::say!(
                 "axis {axis}: {}{}",
                 describe(&config),
                 if save { " (saved)" } else { "" }

@@ -18,8 +18,9 @@ pub struct ControllerArgs {
     /// passphrase, or the derived key as `hex:` and 64 hex digits.
     #[arg(long, env = "OPTALIGN_KEY", hide_env_values = true, value_name = "KEY")]
     pub key: Option<String>,
-    /// How long to wait for each reply before retransmitting, in milliseconds.
-    #[arg(long, default_value_t = 1500, value_name = "MS")]
+    /// How long to wait for each reply before retransmitting, in milliseconds (1 to
+    /// 600,000).
+    #[arg(long, default_value_t = 1500, value_name = "MS", value_parser = clap::value_parser!(u64).range(1..=600_000))]
     pub timeout_ms: u64,
 }
 
@@ -33,7 +34,7 @@ impl ControllerArgs {
             .context("reading the access key (--key or OPTALIGN_KEY)")?;
         let options = ClientOptions {
             key,
-            request_timeout: Duration::from_millis(self.timeout_ms.max(1)),
+            request_timeout: Duration::from_millis(self.timeout_ms),
             ..ClientOptions::default()
         };
         Client::connect(self.controller.clone(), options)

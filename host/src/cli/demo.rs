@@ -97,14 +97,14 @@ pub async fn run(args: DemoArgs) -> anyhow::Result<()> {
         anyhow::Ok((records, report, charts))
     })
     .await??;
-    println!("task       success  terminal error               evaluations");
+    crate::say!("task       success  terminal error               evaluations");
     for record in &records {
         let s = &record.summary;
         let error = s.terminal_error.map_or_else(
             || "none (no light at C8)".to_owned(),
             |e| format!("{e:.1} {}", error_unit(s.task)),
         );
-        println!(
+        crate::say!(
             "{:<10} {:<8} {:<28} {}/{}{}",
             s.task.name(),
             if s.success { "yes" } else { "no" },
@@ -117,9 +117,9 @@ pub async fn run(args: DemoArgs) -> anyhow::Result<()> {
                 .unwrap_or_default()
         );
     }
-    println!("\noutput: {}", args.out.display());
-    println!("report: {}", report.display());
-    println!(
+    crate::say!("\noutput: {}", args.out.display());
+    crate::say!("report: {}", report.display());
+    crate::say!(
         "charts: {} files in {}",
         charts.len(),
         args.out.join("charts").display()

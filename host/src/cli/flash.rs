@@ -34,7 +34,7 @@ pub fn run(args: FlashArgs) -> anyhow::Result<()> {
     let blocks = image.len() / uf2::BLOCK_LEN;
     if let Some(out) = &args.uf2_out {
         write(out, &image)?;
-        println!("wrote {} ({blocks} UF2 blocks)", out.display());
+        crate::say!("wrote {} ({blocks} UF2 blocks)", out.display());
     }
     let drives = drive::find_rp2040_drives();
     match drives.as_slice() {
@@ -42,7 +42,7 @@ pub fn run(args: FlashArgs) -> anyhow::Result<()> {
             let name = elf.file_stem().unwrap_or(BOARD_BIN.as_ref());
             let target = drive.join(name).with_extension("uf2");
             write(&target, &image)?;
-            println!(
+            crate::say!(
                 "flashed {} ({blocks} UF2 blocks) through {}: the board reboots into the new firmware",
                 elf.display(),
                 drive.display()
@@ -57,7 +57,7 @@ pub fn run(args: FlashArgs) -> anyhow::Result<()> {
                     out
                 }
             };
-            println!(
+            crate::say!(
                 "no RPI-RP2 drive is mounted. Hold BOOTSEL while plugging the Pico W into USB, \
                  then copy {} onto the RPI-RP2 drive (or run `optalign flash` again).",
                 out.display()

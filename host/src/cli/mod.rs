@@ -100,7 +100,8 @@ impl Cli {
     }
 }
 
-/// Joins an error and its causes into one line, skipping causes already quoted.
+/// Joins an error and its causes into one line, skipping causes already quoted, with
+/// control characters from outside text escaped.
 pub fn one_line(error: &anyhow::Error) -> String {
     let mut line = error.to_string();
     for cause in error.chain().skip(1) {
@@ -110,5 +111,5 @@ pub fn one_line(error: &anyhow::Error) -> String {
             line.push_str(&cause);
         }
     }
-    line
+    crate::console::escape_controls(&line).into_owned()
 }

@@ -36,7 +36,7 @@ pub async fn run_move(args: MoveArgs) -> anyhow::Result<()> {
         .collect();
     match report.outcome {
         MoveOutcome::Completed => {
-            println!("move completed: {}", positions.join(" "));
+            crate::say!("move completed: {}", positions.join(" "));
             Ok(())
         }
         other => bail!("move ended early ({other:?}) at {}", positions.join(" ")),
@@ -59,7 +59,7 @@ pub async fn run_stop(args: StopArgs) -> anyhow::Result<()> {
             .command_ok(Command::EmergencyStop)
             .await
             .map_err(|e| args.controller.explain(e))?;
-        println!(
+        crate::say!(
             "emergency stop: all axes stopped, coils off; moves are refused until `optalign clear-emergency`"
         );
     } else {
@@ -67,7 +67,7 @@ pub async fn run_stop(args: StopArgs) -> anyhow::Result<()> {
             .command_ok(Command::Stop)
             .await
             .map_err(|e| args.controller.explain(e))?;
-        println!("stop: all axes decelerating to rest");
+        crate::say!("stop: all axes decelerating to rest");
     }
     Ok(())
 }
@@ -84,7 +84,7 @@ pub async fn run_clear_emergency(args: ClearEmergencyArgs) -> anyhow::Result<()>
         .command_ok(Command::ClearEmergency)
         .await
         .map_err(|e| args.controller.explain(e))?;
-    println!(
+    crate::say!(
         "emergency latch cleared: moves are accepted again (coils power up with the next move)"
     );
     Ok(())

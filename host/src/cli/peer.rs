@@ -5,7 +5,13 @@ use std::path::PathBuf;
 
 use clap::Args;
 
+use crate::bounds;
 use crate::peer::{MechanicsOptions, PeerOptions, SimPeer, TimeMode};
+
+/// The slowest simulated clock: a thousandth of real time (a 1 s move takes 17 minutes).
+const MIN_TIME_SCALE: f64 = 1e-3;
+/// The fastest scaled clock; beyond it use 0, where moves complete at once.
+const MAX_TIME_SCALE: f64 = 1e6;
 
 #[derive(Debug, Args)]
 pub struct PeerArgs {
@@ -46,11 +52,16 @@ pub async fn run(args: PeerArgs) -> anyhow::Result<()> {
         "--lost-steps must be a probability in 0..1, got {}",
         args.lost_steps
     );
-    anyhow::ensure!(
-        args.time_scale >= 0.0 && args.time_scale.is_finite(),
-        "--time-scale must be >= 0, got {}",
-        args.time_scale
-    );
+    if args.time_scale != 0.0 {
+        bounds::number_in(
+            "--time-scale",
+            args.time_scale,
+            MIN_TIME_SCALE,
+            MAX_TIME_SCALE,
+            "times real time (or 0 for instant moves)",
+        )
+        .map_err(anyhow::Error::msg)?;
+    }
     let options = PeerOptions {
         axes: args.axes,
         mechanics: MechanicsOptions {
@@ -69,16 +80,17 @@ pub async fn run(args: PeerArgs) -> anyhow::Result<()> {
     };
     let peer = SimPeer::start(&options)?;
     let bound = peer.listen_tcp(args.listen).await?;
-    println!(
+    crate::say!(
         "simulated controller: {} axes, true backlash {} steps",
-        args.axes, args.backlash
+        args.axes,
+        args.backlash
     );
-    println!("listening on tcp://{bound}");
+    crate::say!("listening on tcp://{bound}");
     if args.pty {
-        println!("serial link on serial://{}", peer.open_pty()?);
+        crate::say!("serial link on serial://{}", peer.open_pty()?);
     }
     if args.key.is_none() {
-        println!(
+        crate::say!(
             "no access key: motion over TCP is refused until one is provisioned (--key, or `optalign provision` over the pty)"
         );
     }

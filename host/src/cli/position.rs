@@ -26,7 +26,7 @@ pub async fn run(args: SetPositionArgs) -> anyhow::Result<()> {
             })
             .await
             .map_err(|e| args.controller.explain(e))?;
-        println!("axis {}: position set to {}", value.axis, value.steps);
+        crate::say!("axis {}: position set to {}", value.axis, value.steps);
     }
     Ok(())
 }

@@ -69,7 +69,7 @@ pub async fn run(args: ProvisionArgs) -> anyhow::Result<()> {
         client
             .command_ok(Command::ProvisionWifi { ssid, passphrase })
             .await?;
-        println!("Wi-Fi credentials stored for network {name:?}");
+        crate::say!("Wi-Fi credentials stored for network {name:?}");
     }
     if let Some(key) = key {
         if let AccessKey::Passphrase(passphrase) = &key
@@ -82,7 +82,7 @@ pub async fn run(args: ProvisionArgs) -> anyhow::Result<()> {
         let board_id = client.identity().board_id;
         let derived = tokio::task::spawn_blocking(move || key.for_board(board_id)).await?;
         client.command_ok(Command::SetKey { key: derived }).await?;
-        println!("access key stored; network clients must now present it (OPTALIGN_KEY)");
+        crate::say!("access key stored; network clients must now present it (OPTALIGN_KEY)");
     }
     Ok(())
 }

@@ -119,7 +119,7 @@ pub fn run(args: RenderArgs) -> anyhow::Result<()> {
     let png = frame.encode_png()?;
     std::fs::write(&args.out, png)
         .with_context(|| format!("cannot write {}", args.out.display()))?;
-    println!(
+    crate::say!(
         "wrote {} ({}x{})",
         args.out.display(),
         frame.width(),

@@ -184,7 +184,7 @@ pub async fn run(args: ReplayArgs) -> anyhow::Result<()> {
     };
     let summary = run_episode(&mut rig, &mut policy, None, &scenario.tasks, &run_options).await?;
     let replayed = read_transcript(&out)?;
-    println!(
+    crate::say!(
         "replayed {} recorded steps ({answers} model answers) of {} seed {} without calling a model; records in {}",
         recorded.steps.len(),
         recorded.task,
@@ -204,7 +204,7 @@ pub async fn run(args: ReplayArgs) -> anyhow::Result<()> {
             summary.terminal_error
         );
     }
-    println!(
+    crate::say!(
         "trajectory and score reproduced exactly: {} evaluations, terminal error {}, {}",
         summary.evaluations_used,
         summary
@@ -217,7 +217,7 @@ pub async fn run(args: ReplayArgs) -> anyhow::Result<()> {
         }
     );
     if recorded.summary.is_none() {
-        println!(
+        crate::say!(
             "the recording ended without a summary (the run was interrupted); the replay stopped where it ends"
         );
     }

@@ -202,8 +202,8 @@ pub async fn run(args: RunArgs) -> anyhow::Result<()> {
         }
         server.close().await;
     }
-    println!(
-        "{} seed {}: {} after {} evaluations, terminal error {}{}",
+    crate::say!(
+        "{} seed {}: {} after {} evaluations, terminal error {}",
         summary.task,
         summary.seed,
         if summary.success {
@@ -215,15 +215,13 @@ pub async fn run(args: RunArgs) -> anyhow::Result<()> {
         summary
             .terminal_error
             .map_or("n/a (no light at C8)".into(), |e| format!("{e:.1}")),
-        summary
-            .failure
-            .as_deref()
-            .map(|f| format!(" ({f})"))
-            .unwrap_or_default(),
     );
     if let Some(vlm) = &vlm {
-        println!("model usage: {}", vlm.usage.total());
+        crate::say!("model usage: {}", vlm.usage.total());
     }
-    println!("transcript: {}", out.join("transcript.jsonl").display());
-    Ok(())
+    crate::say!("transcript: {}", out.join("transcript.jsonl").display());
+    match summary.failure {
+        Some(failure) => anyhow::bail!("the run did not run to its end: {failure}"),
+        None => Ok(()),
+    }
 }

@@ -5,7 +5,9 @@ use optalign_protocol::{
     AxisStatus, BootRecord, Direction, Faults, Identity, SecurityCounters, Slack, Status,
     StorageFailure, StorageHealth,
 };
-use serde_json::json;
+
+use crate::console::escape_controls;
+use crate::link::report::status_report;
 
 use super::connect::ControllerArgs;
 
@@ -23,13 +25,12 @@ pub async fn run(args: StatusArgs) -> anyhow::Result<()> {
     let status = client.status().await?;
     let identity = client.identity();
     if args.json {
-        let value = json!({ "controller": client.endpoint().to_string(), "identity": identity, "status": status });
-        println!("{}", serde_json::to_string_pretty(&value)?);
+        let report = status_report(&client.endpoint().to_string(), &identity, &status);
+        crate::say!("{}", serde_json::to_string_pretty(&report)?);
     } else {
-        print!(
-            "{}",
-            render_table(&client.endpoint().to_string(), &identity, &status)
-        );
+        let table = render_table(&client.endpoint().to_string(), &identity, &status);
+        // The board's name and version come from the controller: outside text.
+        crate::say!("{}", escape_controls(table.trim_end()));
     }
     Ok(())
 }

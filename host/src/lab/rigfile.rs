@@ -9,6 +9,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, bail};
 use serde::{Deserialize, Serialize};
 
+use crate::bounds;
 use crate::link::Endpoint;
 use crate::task::{BenchGeometry, TaskKind, TaskLimits, cavity, michelson};
 
@@ -344,9 +345,7 @@ impl RigFile {
             ("settle.after_motor_s", self.settle.after_motor_s),
             ("settle.after_camera_s", self.settle.after_camera_s),
         ] {
-            if !(value.is_finite() && value >= 0.0) {
-                bail!("{name}: must be a time >= 0 s, got {value}");
-            }
+            bounds::seconds(name, value, true).map_err(anyhow::Error::msg)?;
         }
         self.limits.validate().map_err(anyhow::Error::msg)?;
         self.geometry
@@ -376,9 +375,7 @@ impl RigFile {
 }
 
 fn check_timeout(field: &str, value: f64) -> anyhow::Result<()> {
-    if value.is_finite() && value > 0.0 {
-        Ok(())
-    } else {
-        bail!("{field}: must be a time > 0 s, got {value}")
-    }
+    bounds::seconds(field, value, false)
+        .map(drop)
+        .map_err(anyhow::Error::msg)
 }

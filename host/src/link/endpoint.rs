@@ -34,6 +34,45 @@ pub enum EndpointError {
     BadPort { url: String, port: String },
     #[error("controller URL {0:?} has an empty host or path")]
     Empty(String),
+    #[error(
+        "controller URL {0:?} has a malformed host: write an IPv6 address in brackets \
+         (tcp://[::1]:7900) and a name or IPv4 address without them"
+    )]
+    BadHost(String),
+}
+
+/// Splits `HOST:PORT` (or `[IPV6]:PORT`) of a tcp URL; brackets must pair up around the
+/// whole host, and a host without them may not contain a colon.
+fn split_host_port<'a>(url: &str, rest: &'a str) -> Result<(&'a str, &'a str), EndpointError> {
+    let bad_host = || EndpointError::BadHost(url.to_owned());
+    let (host, after) = match rest.strip_prefix('[') {
+        Some(bracketed) => {
+            let (host, after) = bracketed.split_once(']').ok_or_else(bad_host)?;
+            let port_follows = after.is_empty() || after.starts_with(':');
+            if host.contains(['[', ']']) || !host.contains(':') || !port_follows {
+                return Err(bad_host());
+            }
+            (host, after)
+        }
+        None => {
+            let end = rest.find(':').unwrap_or(rest.len());
+            let (host, after) = rest.split_at(end);
+            if host.contains(['[', ']']) {
+                return Err(bad_host());
+            }
+            (host, after)
+        }
+    };
+    let port = after
+        .strip_prefix(':')
+        .ok_or_else(|| EndpointError::NoPort(url.to_owned()))?;
+    if port.contains(':') {
+        return Err(bad_host());
+    }
+    if host.is_empty() {
+        return Err(EndpointError::Empty(url.to_owned()));
+    }
+    Ok((host, port))
 }
 
 impl FromStr for Endpoint {
@@ -45,13 +84,7 @@ impl FromStr for Endpoint {
             .ok_or_else(|| EndpointError::NoScheme(url.to_owned()))?;
         match scheme {
             "tcp" => {
-                let (host, port) = rest
-                    .rsplit_once(':')
-                    .ok_or_else(|| EndpointError::NoPort(url.to_owned()))?;
-                let host = host.trim_start_matches('[').trim_end_matches(']');
-                if host.is_empty() {
-                    return Err(EndpointError::Empty(url.to_owned()));
-                }
+                let (host, port) = split_host_port(url, rest)?;
                 let port = port
                     .parse::<u16>()
                     .ok()
@@ -146,6 +179,24 @@ mod tests {
         assert!(matches!(
             "serial://".parse::<Endpoint>(),
             Err(EndpointError::Empty(_))
+        ));
+        for malformed in [
+            "tcp://[::1:5",
+            "tcp://::1:5",
+            "tcp://[::1]]:5",
+            "tcp://[127.0.0.1]:5",
+            "tcp://host]:5",
+            "tcp://[::1]5",
+        ] {
+            assert_eq!(
+                malformed.parse::<Endpoint>(),
+                Err(EndpointError::BadHost(malformed.into())),
+                "{malformed}"
+            );
+        }
+        assert!(matches!(
+            "tcp://[::1]".parse::<Endpoint>(),
+            Err(EndpointError::NoPort(_))
         ));
     }
 }

@@ -5,6 +5,7 @@ pub mod client;
 pub mod endpoint;
 pub mod framed;
 pub mod key;
+pub mod report;
 pub mod transport;
 
 pub use client::{Client, ClientError, ClientOptions, Event, MoveReport, Unknown};

@@ -153,6 +153,7 @@ mod tests {
             agent_time_s: 0.0,
             wall_clock_s: 0.0,
             failure: None,
+            ended_by: None,
         });
         assert_eq!(hub.matrix_view().finished, 1);
         assert!(hub.run(1).is_some() && hub.run(2).is_none());

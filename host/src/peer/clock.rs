@@ -53,7 +53,8 @@ impl SimClock {
         match self.mode {
             TimeMode::Scaled(scale) => {
                 let sim = deadline_us.saturating_sub(self.now_us());
-                Duration::from_secs_f64(sim as f64 / 1e6 / scale)
+                // Saturates rather than panics for a scale too small to wait for.
+                Duration::try_from_secs_f64(sim as f64 / 1e6 / scale).unwrap_or(Duration::MAX)
             }
             TimeMode::Instant => Duration::ZERO,
         }

@@ -119,9 +119,9 @@ impl<R: BufRead + Send> Policy for ManualPolicy<R> {
             let read = self
                 .input
                 .read_line(&mut line)
-                .map_err(|e| PolicyError(format!("reading input: {e}")))?;
+                .map_err(|e| PolicyError::new(format!("reading input: {e}")))?;
             if read == 0 {
-                return Err(PolicyError("input ended before the task was done".into()));
+                return Err(PolicyError::new("input ended before the task was done"));
             }
             match parse_line(self.brief.task, line.trim()) {
                 Ok(action) => return Ok(Decision::new(action)),

@@ -97,8 +97,28 @@ impl Decision {
 
 /// Why a policy could not decide; ends the run (its transcript stays intact).
 #[derive(Debug, thiserror::Error)]
-#[error("{0}")]
-pub struct PolicyError(pub String);
+#[error("{message}")]
+pub struct PolicyError {
+    pub message: String,
+    /// What the policy did before it gave up (a model's unusable replies, say), for the
+    /// transcript: nothing the policy tried is lost with the run.
+    pub record: Option<serde_json::Value>,
+}
+
+impl PolicyError {
+    pub fn new(message: impl Into<String>) -> Self {
+        Self {
+            message: message.into(),
+            record: None,
+        }
+    }
+
+    /// The same error carrying `record` for the transcript.
+    pub fn with_record(mut self, record: serde_json::Value) -> Self {
+        self.record = Some(record);
+        self
+    }
+}
 
 /// A decision-maker.
 #[async_trait]

@@ -9,9 +9,7 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::Instant;
 
-use anyhow::Context;
-
-pub use summary::{RunSummary, is_success, summarize};
+pub use summary::{EndedBy, Failure, RunSummary, is_success, summarize};
 pub use transcript::{SUMMARY_FILE, StepRecord, Transcript};
 
 use crate::monitor::RunMonitor;
@@ -128,13 +126,29 @@ pub async fn run_episode(
             frames,
         );
     }
-    let mut image = Arc::new(
-        rig.initial_image()
-            .await
-            .context("the rig produced no first image")?,
-    );
-    let mut scores: Vec<Score> = vec![rig.score()];
+    let mut scores: Vec<Score> = Vec::new();
     let mut records: Vec<StepRecord> = Vec::new();
+    let mut image = match rig.initial_image().await {
+        Ok(image) => Arc::new(image),
+        Err(error) => {
+            let failure = rig_failure("the rig produced no first image", &error);
+            if let Some(transcript) = transcript.as_mut() {
+                transcript.failure(0, failure.by, &failure.reason, None)?;
+            }
+            let summary = summarize(
+                task,
+                &policy.name(),
+                options.seed,
+                limits,
+                &scores,
+                &records,
+                false,
+                Some(failure),
+            );
+            return finish(transcript, monitor, summary);
+        }
+    };
+    scores.push(rig.score());
     let mut image_path = save_frame(transcript.as_mut(), options, 0, &image)?;
     if let (Some(transcript), Some(score)) = (transcript.as_mut(), scores.last()) {
         transcript.start_state(score, image_path.as_deref())?;
@@ -180,7 +194,14 @@ pub async fn run_episode(
         let decision = match decided {
             Ok(decision) => decision,
             Err(error) => {
-                failure = Some(format!("policy failed: {error}"));
+                let reason = format!("policy failed: {}", error.message);
+                if let Some(transcript) = transcript.as_mut() {
+                    transcript.failure(evaluations, EndedBy::Policy, &reason, error.record)?;
+                }
+                failure = Some(Failure {
+                    by: EndedBy::Policy,
+                    reason,
+                });
                 break;
             }
         };
@@ -199,9 +220,12 @@ pub async fn run_episode(
                 reason,
             };
             if consecutive_rejections >= options.max_consecutive_rejections {
-                failure = Some(format!(
-                    "the policy sent {consecutive_rejections} invalid actions in a row; the run was ended"
-                ));
+                failure = Some(Failure {
+                    by: EndedBy::Rejections,
+                    reason: format!(
+                        "the policy sent {consecutive_rejections} invalid actions in a row; the run was ended"
+                    ),
+                });
                 break;
             }
             continue;
@@ -223,8 +247,18 @@ pub async fn run_episode(
             }
             executed = rig.execute(&decision.action) => executed,
         };
-        let executed =
-            executed.with_context(|| format!("executing {}", decision.action.describe()))?;
+        let executed = match executed {
+            Ok(executed) => executed,
+            Err(error) => {
+                let what = format!("executing {}", decision.action.describe());
+                let rig_failed = rig_failure(&what, &error);
+                if let Some(transcript) = transcript.as_mut() {
+                    transcript.failure(evaluations, EndedBy::Rig, &rig_failed.reason, None)?;
+                }
+                failure = Some(rig_failed);
+                break;
+            }
+        };
         evaluations += 1;
         image_path = save_frame(transcript.as_mut(), options, evaluations, &executed.image)?;
         let score = rig.score();
@@ -259,8 +293,10 @@ pub async fn run_episode(
         };
     }
     if let Some(reason) = stop {
-        failure =
-            Some(emergency_stop(rig, monitor, transcript.as_mut(), evaluations, &reason).await?);
+        failure = Some(Failure {
+            by: EndedBy::Operator,
+            reason: emergency_stop(rig, monitor, transcript.as_mut(), evaluations, &reason).await?,
+        });
     }
     let summary = summarize(
         task,
@@ -272,6 +308,23 @@ pub async fn run_episode(
         declared_done,
         failure,
     );
+    finish(transcript, monitor, summary)
+}
+
+/// A failure of the rig while `what`, with its whole chain of causes.
+fn rig_failure(what: &str, error: &anyhow::Error) -> Failure {
+    Failure {
+        by: EndedBy::Rig,
+        reason: format!("{what}: {error:#}"),
+    }
+}
+
+/// Writes the closing line and summary, and tells the monitor.
+fn finish(
+    mut transcript: Option<Transcript>,
+    monitor: Option<&RunMonitor>,
+    summary: RunSummary,
+) -> anyhow::Result<RunSummary> {
     if let Some(transcript) = transcript.as_mut() {
         transcript.finish(&summary)?;
     }

@@ -37,8 +37,34 @@ pub struct RunSummary {
     pub camera_time_s: f64,
     pub agent_time_s: f64,
     pub wall_clock_s: f64,
-    /// Why the run ended early, if it did.
+    /// Why the run ended early, if it did: it failed to run to its end (a run that spent
+    /// its budget or was declared done without aligning has none).
     pub failure: Option<String>,
+    /// What ended it early: the rig (camera, controller or camera mover), the policy (a
+    /// model included), too many rejected actions, or the operator.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub ended_by: Option<EndedBy>,
+}
+
+/// What ended a run before it was done or out of budget.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum EndedBy {
+    /// The rig failed: its camera, a controller, or the camera mover.
+    Rig,
+    /// The policy could not decide (a model that failed or kept replying unusably).
+    Policy,
+    /// The policy kept sending actions the task refused.
+    Rejections,
+    /// The operator stopped the run.
+    Operator,
+}
+
+/// Why a run ended early, and what ended it.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Failure {
+    pub by: EndedBy,
+    pub reason: String,
 }
 
 /// Best (lowest) error among the scores so far.
@@ -68,7 +94,7 @@ pub fn summarize(
     scores: &[Score],
     records: &[StepRecord],
     declared_done: bool,
-    failure: Option<String>,
+    failure: Option<Failure>,
 ) -> RunSummary {
     let error_trace: Vec<Option<f64>> = scores.iter().map(Score::error).collect();
     let best_trace: Vec<Option<f64>> = (1..=scores.len())
@@ -109,6 +135,7 @@ pub fn summarize(
         camera_time_s,
         agent_time_s,
         wall_clock_s: motor_time_s + camera_time_s + agent_time_s,
-        failure,
+        ended_by: failure.as_ref().map(|f| f.by),
+        failure: failure.map(|f| f.reason),
     }
 }

@@ -11,7 +11,7 @@ use optalign_optics::Frame;
 use serde::{Deserialize, Serialize};
 use serde_json::json;
 
-use super::summary::RunSummary;
+use super::summary::{EndedBy, RunSummary};
 use crate::monitor::RunMonitor;
 use crate::policy::Decision;
 use crate::rig::{ControllerView, Executed, Score};
@@ -181,6 +181,24 @@ impl Transcript {
             "reason": reason,
             "emergency_stop_error": emergency_stop_error,
             "controllers": controllers,
+        }))
+    }
+
+    /// The run failed at `evaluation`: what failed, why, and what the failing part had
+    /// done before it gave up (a model's unusable replies, say).
+    pub fn failure(
+        &mut self,
+        evaluation: usize,
+        by: EndedBy,
+        reason: &str,
+        record: Option<serde_json::Value>,
+    ) -> anyhow::Result<()> {
+        self.line(&json!({
+            "type": "failure",
+            "evaluation": evaluation,
+            "by": by,
+            "reason": reason,
+            "record": record,
         }))
     }
 

@@ -186,8 +186,7 @@ impl CavityParams {
     /// Checks every field; the error names the first bad one as `cavity.<field>`.
     pub fn validate(&self) -> Result<(), ScenarioError> {
         let check = Check::new("cavity");
-        check.image_side("width_px", self.width_px)?;
-        check.image_side("height_px", self.height_px)?;
+        check.image_size(self.width_px, self.height_px)?;
         check.offset_range("x_offset_range_steps", self.x_offset_range_steps)?;
         check.offset_range("y_offset_range_steps", self.y_offset_range_steps)?;
         check.ge("success_error_steps", self.success_error_steps, 0.0)?;

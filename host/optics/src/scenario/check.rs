@@ -5,6 +5,10 @@ use super::ScenarioError;
 /// Largest image side accepted, in pixels (keeps per-row noise counters collision-free).
 pub(crate) const MAX_IMAGE_SIDE_PX: u32 = 16384;
 
+/// Most pixels in one frame: 25 Mpx, above the largest machine-vision sensors in common
+/// use (20 Mpx); a run holds a few dozen bytes per pixel of working images.
+pub(crate) const MAX_IMAGE_PIXELS: u64 = 25_000_000;
+
 /// Checks fields of one table, prefixing each field name with the table path.
 pub(crate) struct Check<'a> {
     prefix: &'a str,
@@ -69,16 +73,28 @@ impl<'a> Check<'a> {
         }
     }
 
-    /// An image side in pixels: at least 2 and at most [`MAX_IMAGE_SIDE_PX`].
-    pub(crate) fn image_side(&self, field: &str, value: u32) -> Result<(), ScenarioError> {
-        if (2..=MAX_IMAGE_SIDE_PX).contains(&value) {
-            Ok(())
-        } else {
-            Err(self.fail(
-                field,
-                format!("must be within 2..={MAX_IMAGE_SIDE_PX}, got {value}"),
-            ))
+    /// An image's `width_px` and `height_px`: each side at least 2 and at most
+    /// [`MAX_IMAGE_SIDE_PX`], and at most [`MAX_IMAGE_PIXELS`] pixels in all.
+    pub(crate) fn image_size(&self, width: u32, height: u32) -> Result<(), ScenarioError> {
+        for (field, value) in [("width_px", width), ("height_px", height)] {
+            if !(2..=MAX_IMAGE_SIDE_PX).contains(&value) {
+                return Err(self.fail(
+                    field,
+                    format!("must be within 2..={MAX_IMAGE_SIDE_PX}, got {value}"),
+                ));
+            }
         }
+        let pixels = u64::from(width) * u64::from(height);
+        if pixels > MAX_IMAGE_PIXELS {
+            return Err(self.fail(
+                "width_px",
+                format!(
+                    "{width} x {height} is {pixels} pixels; at most {MAX_IMAGE_PIXELS} \
+                     (a larger frame needs gigabytes per run)"
+                ),
+            ));
+        }
+        Ok(())
     }
 
     /// An offset range in motor steps: the hidden offset is drawn from `-value..=value`.

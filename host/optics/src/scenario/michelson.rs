@@ -77,8 +77,7 @@ impl MichelsonParams {
     /// Checks every field; the error names the first bad one as `michelson.<field>`.
     pub fn validate(&self) -> Result<(), ScenarioError> {
         let check = Check::new("michelson");
-        check.image_side("width_px", self.width_px)?;
-        check.image_side("height_px", self.height_px)?;
+        check.image_size(self.width_px, self.height_px)?;
         check.offset_range(
             "horizontal_offset_range_steps",
             self.horizontal_offset_range_steps,

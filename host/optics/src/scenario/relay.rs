@@ -152,8 +152,7 @@ impl RelayParams {
         check.ge("spot_peak_level", self.spot_peak_level, 0.0)?;
 
         let camera = Check::new("relay.camera");
-        camera.image_side("width_px", self.camera.width_px)?;
-        camera.image_side("height_px", self.camera.height_px)?;
+        camera.image_size(self.camera.width_px, self.camera.height_px)?;
         camera.gt("sensor_width_mm", self.camera.sensor_width_mm, 0.0)?;
         camera.gt("sensor_height_mm", self.camera.sensor_height_mm, 0.0)?;
         camera.within(

@@ -85,7 +85,7 @@ impl BayesOpt {
         let (best_config, best_value) = self
             .trail
             .best()
-            .ok_or_else(|| PolicyError("no observation yet".into()))?;
+            .ok_or_else(|| PolicyError::new("no observation yet"))?;
         let incumbent = space.normalise(best_config);
         let informative = outputs.iter().any(|y| *y != outputs[0]);
         let fitted = if informative {
@@ -105,7 +105,7 @@ impl BayesOpt {
                 &Hyperparameters::default_for(space.dims()),
             )
         };
-        let gp = fitted.map_err(|e| PolicyError(format!("Gaussian process: {e}")))?;
+        let gp = fitted.map_err(|e| PolicyError::new(format!("Gaussian process: {e}")))?;
         if informative {
             self.hyper = Some(gp.hyperparameters());
         }

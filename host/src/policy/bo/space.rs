@@ -193,13 +193,13 @@ impl Trail {
     /// Records the objective of the current configuration; call once per decision.
     pub fn observe(&mut self, observation: &Observation) -> Result<(), PolicyError> {
         if let Feedback::Rejected { action, reason } = &observation.feedback {
-            return Err(PolicyError(format!(
+            return Err(PolicyError::new(format!(
                 "the baseline's own action {} was rejected: {reason}",
                 action.describe()
             )));
         }
         let value = self.objective.read().ok_or_else(|| {
-            PolicyError("no privileged objective was published for this baseline".into())
+            PolicyError::new("no privileged objective was published for this baseline")
         })?;
         if self.best().is_none_or(|(_, best)| value > best) {
             self.best = Some(self.observations.len());
@@ -375,7 +375,7 @@ mod tests {
             PrivilegedObjective::default(),
         );
         let error = trail.observe(&observation(3)).unwrap_err();
-        assert!(error.0.contains("no privileged objective"), "{error}");
+        assert!(error.message.contains("no privileged objective"), "{error}");
         let mut rejected = observation(3);
         rejected.feedback = Feedback::Rejected {
             action: Action::Cavity {
@@ -388,7 +388,7 @@ mod tests {
             trail
                 .observe(&rejected)
                 .unwrap_err()
-                .0
+                .message
                 .contains("out of range")
         );
     }

@@ -177,6 +177,40 @@ fn provider_message(body: &str) -> String {
     }
 }
 
+/// The largest chat answer read, in bytes: far above any real answer (a few kB of JSON),
+/// low enough that a broken or hostile server cannot fill the memory.
+const LARGEST_ANSWER_BYTES: usize = 8 << 20;
+
+/// The largest model list read (OpenRouter's, with prices, is about 1 MB).
+const LARGEST_MODEL_LIST_BYTES: usize = 32 << 20;
+
+/// Why a response body was not read.
+#[derive(Debug, thiserror::Error)]
+enum BodyError {
+    #[error("{}", without_url(.0))]
+    Http(reqwest::Error),
+    #[error("the answer was larger than {0} bytes; it was not read")]
+    TooLarge(usize),
+}
+
+/// A response's body as text, refused once it grows past `limit` bytes.
+async fn read_bounded(mut response: reqwest::Response, limit: usize) -> Result<String, BodyError> {
+    if response
+        .content_length()
+        .is_some_and(|length| length > limit as u64)
+    {
+        return Err(BodyError::TooLarge(limit));
+    }
+    let mut body = Vec::new();
+    while let Some(chunk) = response.chunk().await.map_err(BodyError::Http)? {
+        if body.len() + chunk.len() > limit {
+            return Err(BodyError::TooLarge(limit));
+        }
+        body.extend_from_slice(&chunk);
+    }
+    Ok(String::from_utf8_lossy(&body).into_owned())
+}
+
 fn retry_after(headers: &HeaderMap) -> Option<Duration> {
     headers
         .get(RETRY_AFTER)?
@@ -186,7 +220,7 @@ fn retry_after(headers: &HeaderMap) -> Option<Duration> {
         .parse::<f64>()
         .ok()
         .filter(|s| s.is_finite() && *s >= 0.0)
-        .map(Duration::from_secs_f64)
+        .map(|s| Duration::from_secs_f64(s.min(crate::bounds::LONGEST_WAIT_S)))
 }
 
 /// The reply text of a chat-completions answer (a string or a list of text parts).
@@ -232,12 +266,8 @@ impl HttpClient {
                 base.host_str().unwrap_or("?")
             );
         }
-        anyhow::ensure!(
-            options.timeout_s.is_finite() && options.timeout_s > 0.0,
-            "--timeout-s must be > 0, got {}",
-            options.timeout_s
-        );
-        let timeout = Duration::from_secs_f64(options.timeout_s);
+        let timeout = crate::bounds::seconds("--timeout-s", options.timeout_s, false)
+            .map_err(anyhow::Error::msg)?;
         let http = reqwest::Client::builder()
             .timeout(timeout)
             .user_agent(concat!("optalign/", env!("CARGO_PKG_VERSION")))
@@ -294,9 +324,9 @@ impl HttpClient {
         };
         let status = response.status();
         let after = retry_after(response.headers());
-        let text = match response.text().await {
+        let text = match read_bounded(response, LARGEST_ANSWER_BYTES).await {
             Ok(text) => text,
-            Err(error) => {
+            Err(BodyError::Http(error)) => {
                 return Attempt::Retry {
                     reason: if error.is_timeout() {
                         format!(
@@ -306,6 +336,12 @@ impl HttpClient {
                     } else {
                         format!("reading the answer failed: {}", without_url(&error))
                     },
+                    after: None,
+                };
+            }
+            Err(error @ BodyError::TooLarge(_)) => {
+                return Attempt::Retry {
+                    reason: error.to_string(),
                     after: None,
                 };
             }
@@ -354,10 +390,9 @@ impl HttpClient {
             .await
             .map_err(|e| anyhow::anyhow!("{}", without_url(&e)))?;
         let status = response.status();
-        let text = response
-            .text()
+        let text = read_bounded(response, LARGEST_MODEL_LIST_BYTES)
             .await
-            .map_err(|e| anyhow::anyhow!("{}", without_url(&e)))?;
+            .map_err(|e| anyhow::anyhow!("{e}"))?;
         anyhow::ensure!(
             status.is_success(),
             "listing models failed (HTTP {}): {}",

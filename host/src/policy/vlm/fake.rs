@@ -637,15 +637,12 @@ pub async fn run_cli(args: FakeLlmArgs) -> anyhow::Result<()> {
         config.script = serde_json::from_str(&text)
             .with_context(|| format!("invalid script {}", path.display()))?;
     }
-    anyhow::ensure!(
-        args.idle_timeout_s.is_finite() && args.idle_timeout_s > 0.0,
-        "--idle-timeout-s must be > 0"
-    );
+    let idle = crate::bounds::seconds("--idle-timeout-s", args.idle_timeout_s, false)
+        .map_err(anyhow::Error::msg)?;
     let server = FakeLlm::bind(config, args.port)
         .await
         .context("cannot listen on 127.0.0.1")?;
-    println!("fake-llm listening on {}", server.base_url());
-    let idle = Duration::from_secs_f64(args.idle_timeout_s);
+    crate::say!("fake-llm listening on {}", server.base_url());
     let mut reported = 0;
     loop {
         tokio::time::sleep(Duration::from_millis(100)).await;

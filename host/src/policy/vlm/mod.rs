@@ -372,7 +372,7 @@ impl VlmPolicy {
     fn failed(&mut self, what: &str) -> Result<(), PolicyError> {
         self.failures += 1;
         if self.failures >= self.options.max_consecutive_failures {
-            return Err(PolicyError(format!(
+            return Err(PolicyError::new(format!(
                 "the model failed {} times in a row without a usable action; the last failure: {what}",
                 self.failures
             )));
@@ -416,6 +416,25 @@ impl VlmPolicy {
     }
 }
 
+/// The longest reply kept, in bytes: a usable reply is a JSON object of a few kB; a longer
+/// one is cut here before it is recorded or sent back with the conversation.
+const LONGEST_REPLY_BYTES: usize = 64 * 1024;
+
+/// Cuts `text` to [`LONGEST_REPLY_BYTES`] (at a character boundary); returns its original
+/// length when it was longer.
+fn cut_overlong(text: &mut String) -> Option<usize> {
+    let length = text.len();
+    if length <= LONGEST_REPLY_BYTES {
+        return None;
+    }
+    let mut end = LONGEST_REPLY_BYTES;
+    while !text.is_char_boundary(end) {
+        end -= 1;
+    }
+    text.truncate(end);
+    Some(length)
+}
+
 #[async_trait]
 impl Policy for VlmPolicy {
     fn name(&self) -> String {
@@ -426,25 +445,37 @@ impl Policy for VlmPolicy {
         self.note_outcome(&observation.feedback)?;
         if !matches!(observation.feedback, Feedback::Rejected { .. }) {
             let image = image::prepare(&observation.image, self.options.max_image_side)
-                .map_err(|e| PolicyError(format!("cannot prepare the image: {e}")))?;
+                .map_err(|e| PolicyError::new(format!("cannot prepare the image: {e}")))?;
             let text = self.observation_text(observation);
             self.conversation.push_user(text, Some(image));
         }
         let mut exchanges = Vec::new();
         let mut latency_s = 0.0;
+        let unused = |exchanges: &Vec<serde_json::Value>, error: PolicyError| {
+            error.with_record(json!({ "exchanges": exchanges }))
+        };
         loop {
             let request = self.request();
             let record = self.request_record(&request);
-            let completion = self
-                .backend
-                .complete(&request)
-                .await
-                .map_err(|e| PolicyError(format!("model request failed: {e}")))?;
+            let completion = match self.backend.complete(&request).await {
+                Ok(completion) => completion,
+                Err(e) => {
+                    let error = PolicyError::new(format!("model request failed: {e}"));
+                    return Err(unused(&exchanges, error));
+                }
+            };
+            let mut completion = completion;
+            let overlong = cut_overlong(&mut completion.text);
             latency_s += completion.latency_s;
             self.usage.add(&completion.usage);
             self.options.usage.add(&completion.usage);
             self.conversation.push_assistant(&completion.text);
-            let outcome = self.interpret(&completion);
+            let outcome = match overlong {
+                Some(length) => Err(format!(
+                    "it was {length} bytes long, over the limit of {LONGEST_REPLY_BYTES}; send one short JSON object"
+                )),
+                None => self.interpret(&completion),
+            };
             exchanges.push(json!({
                 "request": record,
                 "completion": completion,
@@ -471,7 +502,8 @@ impl Policy for VlmPolicy {
                     });
                 }
                 Err(problem) => {
-                    self.failed(&format!("an unusable reply: {problem}"))?;
+                    self.failed(&format!("an unusable reply: {problem}"))
+                        .map_err(|error| unused(&exchanges, error))?;
                     let text = format!(
                         "Your reply could not be used: {problem}. Nothing was executed and no action was charged. Send your reply again as one JSON object in the required format."
                     );
