@@ -174,6 +174,14 @@ async fn a_peer_killed_mid_move_comes_back_with_the_position_lost_until_re_zeroe
         .find(|l| l.trim_start().starts_with("0 "))
         .unwrap();
     assert!(row.ends_with("position-lost"), "{table}");
+    // The same in words for scripts (schema optalign.status/1), no bit masks.
+    let json = optalign(&url, &["status", "--json"]).await;
+    let report: serde_json::Value = serde_json::from_slice(&json.stdout).unwrap();
+    assert_eq!(report["schema"], "optalign.status/1");
+    assert_eq!(report["boot"], "interrupted-move");
+    assert_eq!(report["positions_lost"], serde_json::json!([0]));
+    assert_eq!(report["axes"][0]["faults"], serde_json::json!(["position-lost"]));
+    assert_eq!(report["axes"][1]["faults"], serde_json::json!([]));
 
     let refused = optalign(&url, &["move", "0=100"]).await;
     assert!(!refused.status.success(), "{}", text(&refused));
