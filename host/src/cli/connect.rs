@@ -21,24 +21,33 @@ pub struct ControllerArgs {
     /// How long to wait for each reply before retransmitting, in milliseconds.
     #[arg(long, default_value_t = 1500, value_name = "MS")]
     pub timeout_ms: u64,
+    /// How long connecting, and each request, may take in all (retransmissions and
+    /// reconnects included), in milliseconds; `stop` keeps trying this long.
+    #[arg(long, default_value_t = 10_000, value_name = "MS", value_parser = clap::value_parser!(u64).range(1..=3_600_000))]
+    pub deadline_ms: u64,
 }
 
 impl ControllerArgs {
     pub async fn connect(&self) -> anyhow::Result<Client> {
+        Client::connect(self.controller.clone(), self.options()?)
+            .await
+            .with_context(|| format!("connecting to {}", self.controller))
+    }
+
+    /// How the client behaves, from the flags.
+    pub fn options(&self) -> anyhow::Result<ClientOptions> {
         let key = self
             .key
             .as_deref()
             .map(str::parse::<AccessKey>)
             .transpose()
             .context("reading the access key (--key or OPTALIGN_KEY)")?;
-        let options = ClientOptions {
+        Ok(ClientOptions {
             key,
             request_timeout: Duration::from_millis(self.timeout_ms.max(1)),
+            deadline: Duration::from_millis(self.deadline_ms),
             ..ClientOptions::default()
-        };
-        Client::connect(self.controller.clone(), options)
-            .await
-            .with_context(|| format!("connecting to {}", self.controller))
+        })
     }
 
     /// Adds what the user can do about a refusal (a missing key, say) to a client error.
