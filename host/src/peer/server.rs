@@ -101,7 +101,7 @@ impl SimPeer {
         replies
     }
 
-    /// Network connections open now (in slots and stop-only).
+    /// Network connections open now (in slots and the lobby).
     pub fn network_clients(&self) -> usize {
         lock(&self.network).open()
     }
