@@ -264,13 +264,14 @@ impl Client {
     }
 
     /// Opens the first connection, again while the controller has no room for it yet (its
-    /// slots taken: the connection was closed at once, or may only stop the motors).
+    /// slots taken: the connection was closed at once, or may only stop the motors) or a
+    /// setup reply did not come, until the deadline.
     async fn first_open(&self) -> Result<(), ClientError> {
         let mut connection = self.connection.lock().await;
         loop {
             match self.open(&mut connection).await {
-                Err(error @ ClientError::Io { .. }) => {
-                    tracing::debug!(%error, "connection dropped while being set up; again");
+                Err(error @ (ClientError::Io { .. } | ClientError::Timeout { .. })) => {
+                    tracing::debug!(%error, "connection dropped or silent while being set up; again");
                 }
                 Err(ClientError::Rejected(error)) if error.code == ErrorCode::BUSY => {
                     tracing::debug!(%error, "no slot for this connection yet; again");
