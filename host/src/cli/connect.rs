@@ -8,6 +8,9 @@ use clap::Args;
 use crate::link::{AccessKey, Client, ClientError, ClientOptions, Endpoint};
 use optalign_protocol::ErrorCode;
 
+/// How long connecting, and each request, may take in all unless told otherwise, ms.
+pub const DEFAULT_DEADLINE_MS: u64 = 10_000;
+
 /// Where the controller is and how to authenticate.
 #[derive(Debug, Args)]
 pub struct ControllerArgs {
@@ -23,7 +26,7 @@ pub struct ControllerArgs {
     pub timeout_ms: u64,
     /// How long connecting, and each request, may take in all (retransmissions and
     /// reconnects included), in milliseconds; `stop` keeps trying this long.
-    #[arg(long, default_value_t = 10_000, value_name = "MS", value_parser = clap::value_parser!(u64).range(1..=3_600_000))]
+    #[arg(long, default_value_t = DEFAULT_DEADLINE_MS, value_name = "MS", value_parser = clap::value_parser!(u64).range(1..=3_600_000))]
     pub deadline_ms: u64,
 }
 
