@@ -1,10 +1,9 @@
 //! The command dispatcher: handshake, access control, the request-id memory, and the
 //! execution of every command.
 //!
-//! Order of checks: handshake, then the reserved slot (a session on the slot kept for a
-//! client that authenticates may only authenticate or stop), then access (so a session
-//! without access learns nothing
-//! from the reply memory, not even a cached reply), then the reply memory (so a client that
+//! Order of checks: handshake, then the stop-only rule (a connection waiting in the lobby
+//! for a network slot may only shake hands and stop),
+//! then access (so a session without access learns nothing from the reply memory, not even a cached reply), then the reply memory (so a client that
 //! reconnected gets its retransmission answered even while its old connection still holds
 //! control), then the single-controller rule (see [`crate::control`]), then the command.
 //!
@@ -89,10 +88,10 @@ impl<S: Storage> Controller<S> {
                 "send Hello {{ protocol_version: {PROTOCOL_VERSION} }} first"
             ));
         }
-        if session.refuses_on_reserved_slot(command) {
+        if session.refuses_as_stop_only(command) {
             return Err(error_reply!(
                 ErrorCode::BUSY,
-                "the last free client slot is kept for a client that authenticates"
+                "no network slot is free for this connection: only Hello and EmergencyStop here"
             ));
         }
         self.check_access(session, command)?;

@@ -5,7 +5,10 @@
 //! simulated peer both embed a [`Controller`] and feed it requests, time and a
 //! [`StepDriver`]. The controller never blocks and never panics on any input.
 //!
-//! How an embedder drives it:
+//! How an embedder drives it: each open connection is a [`Connection`], which decodes,
+//! checks and encodes its frames, tells when it is closed and reaches the controller
+//! through the embedder's [`Port`]; network connections get their places from an
+//! [`admission::Admissions`] table. Underneath, what a `Connection` and its `Port` do:
 //! - every decoded request goes to [`Controller::handle`], whose `out` receives exactly one
 //!   message, the reply, for that session;
 //! - frames are decoded against the session's [`Session::inbound`] (on an authenticated
@@ -14,8 +17,6 @@
 //! - once a session authenticated, [`Session::take_sealer`] gives the sealer for every
 //!   frame sent to it from then on (the reply that confirmed authentication included),
 //!   notifications too;
-//! - a network connection is closed when [`Session::close_at_us`] passes (an
-//!   unauthenticated client that went idle), and [`Session::heard`] notes each request;
 //! - when a connection ends, its session goes to [`Controller::end_session`], which
 //!   releases control of the motors if that session held it;
 //! - [`Controller::poll`] runs whenever [`Controller::next_deadline_us`] is due (and may run
@@ -25,11 +26,13 @@
 //!   delivered by the next `poll`; `next_deadline_us` is then due at once.
 #![cfg_attr(not(test), no_std)]
 
+pub mod admission;
 mod axis;
 mod backoff;
 #[cfg(any(feature = "board", feature = "emu"))]
 pub mod board;
 pub mod config;
+pub mod connection;
 mod control;
 mod controller;
 mod dispatch;
@@ -50,6 +53,7 @@ pub mod storage;
 #[cfg(test)]
 mod tests;
 
+pub use connection::{Connection, Deadlines, Port, Received};
 pub use controller::{BoardInfo, Controller};
 pub use driver::{StepDirection, StepDriver, half_step_coils};
 pub use session::{LinkKind, RngSource, Session};

@@ -209,6 +209,8 @@ async fn campaign(seed: u64, attempts: u32, moves: usize) -> (Figures, String) {
             attempts,
             connect_timeout: Duration::from_secs(2),
             send_timeout: Duration::from_secs(1),
+            // The attempts are what is tested here: no overall deadline cuts them short.
+            deadline: Duration::from_secs(120),
         },
     )
     .await

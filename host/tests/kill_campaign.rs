@@ -196,6 +196,7 @@ fn client_options(key: bool) -> ClientOptions {
         attempts: 6,
         connect_timeout: Duration::from_secs(1),
         send_timeout: Duration::from_secs(1),
+        deadline: Duration::from_secs(10),
     }
 }
 

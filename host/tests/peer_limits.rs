@@ -1,17 +1,18 @@
-//! The simulated peer's bounds, on 127.0.0.1: a connection cap that refuses clearly and
-//! keeps the last slot for a client that authenticates, and a client that never reads its
-//! replies is throttled instead of buffered without end.
+//! The simulated peer's bounds, on 127.0.0.1: a connection cap whose newcomers evict
+//! strangers, past key holders only stop, and a client that never reads its replies is
+//! throttled instead of buffered without end, and closed.
 
 use std::sync::Arc;
 use std::time::Duration;
 
 use optalign::link::{AccessKey, Client, ClientError, ClientOptions, Endpoint};
 use optalign::peer::{PeerOptions, SimPeer, TimeMode};
+use optalign_firmware::admission::{AUTH_GRACE_US, SILENT_GRACE_US};
 use optalign_protocol::{
     Command, ErrorCode, MAX_FRAME, PROTOCOL_VERSION, Request, RequestId, encode_frame,
 };
-use tokio::io::AsyncWriteExt;
-use tokio::net::TcpSocket;
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio::net::{TcpSocket, TcpStream};
 
 const KEY: &str = "limits-test-key";
 
@@ -53,51 +54,78 @@ async fn until_open(peer: &SimPeer, open: usize) {
     );
 }
 
+/// Reads until `stream` is closed by the peer; false if it stays open `within`.
+async fn closed_within(stream: &mut TcpStream, within: Duration) -> bool {
+    let mut byte = [0u8; 64];
+    tokio::time::timeout(within, async {
+        while let Ok(1..) = stream.read(&mut byte).await {}
+    })
+    .await
+    .is_ok()
+}
+
+/// Replaces the rule this file encoded before (the last free slot kept for a client with
+/// the key, and a full peer refusing newcomers): strangers holding every slot let
+/// four silent clients lock everyone out (issue 31), so a newcomer now evicts them.
 #[tokio::test]
-async fn a_full_peer_refuses_clearly_and_keeps_the_last_slot_for_a_controller() {
-    let (peer, endpoint) = peer(3).await;
-    let controller = connect(&endpoint, true).await.unwrap();
+async fn a_full_peer_evicts_strangers_for_newcomers_and_past_key_holders_only_stops() {
+    let (peer, endpoint) = peer(2).await;
+    let Endpoint::Tcp { host, port } = &endpoint else {
+        unreachable!()
+    };
+    let address = format!("{host}:{port}");
+    // Two strangers hold both slots: an observer without the key, and a silent one.
     let observer = connect(&endpoint, false).await.unwrap();
     assert!(observer.status().await.is_ok());
+    let mut silent = TcpStream::connect(&address).await.unwrap();
     until_open(&peer, 2).await;
+    tokio::time::sleep(Duration::from_micros(SILENT_GRACE_US + 50_000)).await;
 
-    // The last slot: an observer without the key may shake hands, but nothing more.
-    let squatter = connect(&endpoint, false).await.unwrap();
-    let error = squatter.status().await.unwrap_err();
-    assert_eq!(error.code(), Some(ErrorCode::BUSY), "{error}");
-    assert!(
-        error
-            .to_string()
-            .contains("kept for a client that authenticates"),
-        "{error}"
-    );
-    until_open(&peer, 2).await;
+    // A client with the key gets in: the silent stranger goes first.
+    let controller = connect(&endpoint, true).await.unwrap();
+    assert!(closed_within(&mut silent, Duration::from_secs(1)).await);
+    assert!(controller.status().await.is_ok());
+    assert!(observer.status().await.is_ok(), "the observer still served");
 
-    // A client with the key takes it and is served.
+    // The observer spoke, so it has longer to authenticate; then it goes too.
+    tokio::time::sleep(Duration::from_micros(AUTH_GRACE_US)).await;
     let second = connect(&endpoint, true).await.unwrap();
     assert!(second.status().await.is_ok());
-    until_open(&peer, 3).await;
+    until_open(&peer, 2).await;
 
-    // Full: refused with a reason, at once.
-    let refused = tokio::time::timeout(Duration::from_secs(5), connect(&endpoint, true))
+    // Every slot held by a key holder: a newcomer may only shake hands and stop.
+    let quick = ClientOptions {
+        key: Some(AccessKey::passphrase(KEY)),
+        deadline: Duration::from_millis(600),
+        ..ClientOptions::default()
+    };
+    let error = Client::connect(endpoint.clone(), quick)
         .await
-        .expect("a refusal, not a hang");
-    let error = refused.err().expect("no slot is free");
+        .err()
+        .expect("no slot for a third key holder");
+    assert!(
+        matches!(error, ClientError::Deadline { .. }),
+        "tried until its deadline: {error}"
+    );
+    let stopper = connect(&endpoint, false).await.unwrap();
+    let error = stopper.status().await.unwrap_err();
     assert_eq!(error.code(), Some(ErrorCode::BUSY), "{error}");
     assert!(
-        error
-            .to_string()
-            .contains("all 3 network client slots are taken"),
+        error.to_string().contains("only Hello and EmergencyStop"),
         "{error}"
     );
+    let stopper = connect(&endpoint, false).await.unwrap();
+    stopper.command_ok(Command::EmergencyStop).await.unwrap();
+    assert!(
+        controller.status().await.unwrap().emergency_stopped,
+        "the stop-only connection stopped the motors"
+    );
 
-    // The others are still served, and a closed connection frees its slot.
-    assert!(controller.status().await.is_ok());
+    // A key holder leaving frees its slot.
     drop(second);
     until_open(&peer, 2).await;
     let again = connect(&endpoint, true).await.unwrap();
     assert!(again.status().await.is_ok());
-    drop(observer);
 }
 
 #[tokio::test]

@@ -9,7 +9,7 @@ use std::time::Duration;
 use anyhow::{Context, bail};
 use optalign::cli::axes::check_axes;
 use optalign::cli::config::apply_field;
-use optalign::cli::connect::ControllerArgs;
+use optalign::cli::connect::{ControllerArgs, DEFAULT_DEADLINE_MS};
 use optalign::link::{Client, Endpoint};
 use optalign_protocol::{AxisValue, Command, MoveOutcome};
 use pyo3::prelude::*;
@@ -132,6 +132,7 @@ impl Controller {
             controller: endpoint,
             key,
             timeout_ms: seconds("timeout", timeout)?.as_millis().max(1) as u64,
+            deadline_ms: DEFAULT_DEADLINE_MS,
         };
         let runtime = runtime::background()?;
         let client = py

@@ -48,6 +48,7 @@ pub fn controller(py: Python<'_>, error: anyhow::Error) -> PyErr {
         }
         Some(
             ClientError::Timeout { .. }
+            | ClientError::Deadline { .. }
             | ClientError::MoveTimeout { .. }
             | ClientError::SendTimeout { .. },
         ) => ControllerTimeout::new_err(message),

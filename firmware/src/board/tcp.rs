@@ -1,12 +1,13 @@
-//! The protocol on TCP port [`PORT`], up to [`SESSIONS`] connections at once: one client
-//! controls the motors, the others may read status and stop them (see the core's
-//! single-controller rule).
+//! The protocol on TCP port [`PORT`]: [`SESSIONS`] sockets, one per task, each accepting
+//! and serving one connection at a time; one client controls the motors, the others may
+//! read status and stop them (see the core's single-controller rule).
 //!
-//! The last free connection is kept for a client that authenticates: a connection that
-//! takes it may only shake hands, authenticate or stop until it has authenticated, and is
-//! closed if it has not within a few seconds. Every unauthenticated connection is closed
-//! after a few idle seconds (see the core's `Session::close_at_us`), so strangers cannot
-//! hold every connection.
+//! Who is served is the core's admission table's decision ([`crate::admission`], held in
+//! [`link::NETWORK`]): [`link::SLOTS`] connections in slots, and one more socket for the
+//! lobby, where a newcomer may shake hands and stop until a request of its own earns it a
+//! slot, evicting an unauthenticated connection (whose task is told through its
+//! [`link::EVICTED`] signal). Strangers holding connections therefore cannot keep out a
+//! client with the key, nor an emergency stop.
 //!
 //! Keep-alive probes every 5 s and a 15 s timeout close a connection whose client vanished
 //! with the Wi-Fi, which releases control for the next client.
@@ -16,26 +17,29 @@ use embassy_net::tcp::TcpSocket;
 use embassy_time::{Duration, with_timeout};
 use portable_atomic::{AtomicUsize, Ordering};
 
-use super::SharedCore;
-use super::link;
+use super::link::{self, NETWORK};
 use super::log::{info, warn};
+use super::{SharedCore, now_us};
+use crate::admission::{Admission, LOBBY};
+use crate::connection::{Connection, Deadlines};
 use crate::session::LinkKind;
 
 /// The TCP port of the protocol.
 pub const PORT: u16 = 7878;
-/// Connections served at once.
-pub const SESSIONS: usize = 3;
+/// Connections open at once (sockets, and tasks serving them).
+pub const SESSIONS: usize = link::SLOTS + LOBBY;
 
 const BUFFER: usize = 1024;
-
-/// Connections being served now.
-static OPEN: AtomicUsize = AtomicUsize::new(0);
 const KEEP_ALIVE: Duration = Duration::from_secs(5);
 const TIMEOUT: Duration = Duration::from_secs(15);
+
+/// Hands each task its index (its token in the admission table).
+static TASKS: AtomicUsize = AtomicUsize::new(0);
 
 /// Accepts and serves connections, one at a time per task instance.
 #[embassy_executor::task(pool_size = SESSIONS)]
 pub async fn serve(core: &'static SharedCore, stack: Stack<'static>) -> ! {
+    let index = TASKS.fetch_add(1, Ordering::AcqRel);
     let mut rx = [0u8; BUFFER];
     let mut tx = [0u8; BUFFER];
     loop {
@@ -48,10 +52,28 @@ pub async fn serve(core: &'static SharedCore, stack: Stack<'static>) -> ! {
             continue;
         }
         info!("tcp: client {}", socket.remote_endpoint());
-        let reserved = OPEN.fetch_add(1, Ordering::AcqRel) + 1 >= SESSIONS;
-        let (mut reader, mut writer) = socket.split();
-        link::serve(core, LinkKind::Network, reserved, &mut reader, &mut writer).await;
-        OPEN.fetch_sub(1, Ordering::AcqRel);
+        let mine = link::EVICTED.get(index);
+        if let Some(signal) = mine {
+            // A signal meant for this task's previous connection.
+            signal.reset();
+        }
+        let now = now_us();
+        let admission = NETWORK.lock(|table| table.borrow_mut().admit(now, index));
+        let ticket = match admission {
+            Admission::Slot(ticket) => Some(ticket),
+            Admission::Lobby { ticket, evicted } => {
+                link::evict(evicted);
+                Some(ticket)
+            }
+            Admission::Refused => None,
+        };
+        if let Some(ticket) = ticket {
+            let connection = Connection::open(LinkKind::Network, ticket, now, Deadlines::STANDARD);
+            let (mut reader, mut writer) = socket.split();
+            link::serve(core, connection, &mut reader, &mut writer, mine).await;
+        } else {
+            warn!("tcp: the lobby is full of clients that spoke: closing");
+        }
         socket.close();
         // Let the FIN go out before the buffers are reused.
         let _ = with_timeout(Duration::from_secs(1), socket.flush()).await;

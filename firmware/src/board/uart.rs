@@ -3,8 +3,10 @@
 
 use embassy_rp::uart::BufferedUart;
 
-use super::SharedCore;
 use super::link;
+use super::{SharedCore, now_us};
+use crate::admission::Ticket;
+use crate::connection::{Connection, Deadlines};
 use crate::session::LinkKind;
 
 pub const BAUD: u32 = 115_200;
@@ -14,6 +16,12 @@ pub const BAUD: u32 = 115_200;
 pub async fn serve(core: &'static SharedCore, uart: BufferedUart) -> ! {
     let (mut tx, mut rx) = uart.split();
     loop {
-        link::serve(core, LinkKind::Serial, false, &mut rx, &mut tx).await;
+        let connection = Connection::open(
+            LinkKind::Serial,
+            Ticket::Serial,
+            now_us(),
+            Deadlines::STANDARD,
+        );
+        link::serve(core, connection, &mut rx, &mut tx, None).await;
     }
 }

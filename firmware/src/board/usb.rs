@@ -15,8 +15,10 @@ use embassy_usb::{Builder, UsbDevice};
 use embedded_io_async::{ErrorType, Write};
 use static_cell::StaticCell;
 
-use super::SharedCore;
 use super::link;
+use super::{SharedCore, now_us};
+use crate::admission::Ticket;
+use crate::connection::{Connection, Deadlines};
 use crate::session::LinkKind;
 
 const VID: u16 = 0x2E8A;
@@ -70,7 +72,13 @@ async fn serial(core: &'static SharedCore, class: CdcAcmClass<'static, UsbDriver
     let mut tx = Packets(sender);
     loop {
         rx.wait_connection().await;
-        link::serve(core, LinkKind::Serial, false, &mut rx, &mut tx).await;
+        let connection = Connection::open(
+            LinkKind::Serial,
+            Ticket::Serial,
+            now_us(),
+            Deadlines::STANDARD,
+        );
+        link::serve(core, connection, &mut rx, &mut tx, None).await;
     }
 }
 

@@ -12,9 +12,9 @@ use super::dispatch::{
     CLIENT_NONCE, KEY, a_move, authenticate, code, network, plain, reason, response,
 };
 use super::rig::Rig;
+use crate::admission::{MAX_SLOTS, Standing, Ticket};
 use crate::backoff::FIRST_DELAY_US;
-use crate::session::{RESERVED_SLOT_AUTH_US, UNAUTHENTICATED_IDLE_US};
-use crate::{LinkKind, Session};
+use crate::{Connection, Deadlines, LinkKind, Port, Received, Session};
 
 /// Authenticates `session` under `KEY`; returns the sealer its client seals requests with.
 fn authenticated(rig: &mut Rig, session: &mut Session) -> Sealer {
@@ -211,77 +211,246 @@ fn failed_authentications_are_counted_and_close_authentication_for_a_growing_whi
     assert!(reason(&reply).contains("try again in 250 ms"), "{reply:?}");
 }
 
-#[test]
-fn unauthenticated_network_sessions_are_closed_when_idle_and_the_reserved_slot_soon() {
-    let t0 = 10_000_000;
-    let serial = Session::opened(LinkKind::Serial, t0);
-    assert_eq!(serial.close_at_us(), None);
+/// The rig as an embedder's [`Port`], noting what it is told about standing and ends, and
+/// giving a lobby connection `slot` when asked for one.
+struct RigPort<'a> {
+    rig: &'a mut Rig,
+    standings: Vec<(Ticket, Standing)>,
+    ended: Vec<Ticket>,
+    slot: Option<Ticket>,
+}
 
-    let mut idle = Session::opened(LinkKind::Network, t0);
-    assert_eq!(idle.close_at_us(), Some(t0 + UNAUTHENTICATED_IDLE_US));
-    idle.heard(t0 + 3_000_000);
-    assert_eq!(
-        idle.close_at_us(),
-        Some(t0 + 3_000_000 + UNAUTHENTICATED_IDLE_US)
-    );
-    idle.heard(t0 + 1_000_000);
-    assert_eq!(
-        idle.close_at_us(),
-        Some(t0 + 3_000_000 + UNAUTHENTICATED_IDLE_US),
-        "an earlier time never moves the deadline back"
-    );
+impl<'a> RigPort<'a> {
+    fn new(rig: &'a mut Rig) -> Self {
+        Self {
+            rig,
+            standings: Vec::new(),
+            ended: Vec::new(),
+            slot: None,
+        }
+    }
+}
 
-    let mut reserved = Session::opened(LinkKind::Network, t0);
-    reserved.keep_for_authentication();
-    reserved.heard(t0 + 4_000_000);
-    assert_eq!(
-        reserved.close_at_us(),
-        Some(t0 + RESERVED_SLOT_AUTH_US),
-        "talking does not keep the reserved slot"
-    );
+const SLOT: Ticket = Ticket::Network {
+    index: 0,
+    generation: 1,
+};
 
-    let mut rig = Rig::new(1, 0, plain());
-    rig.ok(Command::SetKey { key: KEY });
-    let mut session = Session::opened(LinkKind::Network, t0);
-    session.keep_for_authentication();
-    let hello = Command::Hello {
-        protocol_version: PROTOCOL_VERSION,
-    };
-    assert!(matches!(
-        rig.send_on(&mut session, RequestId(1), hello),
-        Reply::Hello(_)
-    ));
-    authenticated(&mut rig, &mut session);
-    assert_eq!(
-        session.close_at_us(),
+const LOBBY: Ticket = Ticket::Network {
+    index: MAX_SLOTS as u8,
+    generation: 2,
+};
+
+impl Port for RigPort<'_> {
+    fn request(
+        &mut self,
+        session: &mut Session,
+        request: &Request,
+        out: &mut dyn FnMut(PeerMessage),
+    ) {
+        let rig = &mut *self.rig;
+        rig.controller
+            .handle(session, request, rig.now, &mut rig.rng, out);
+    }
+
+    fn link_error(&mut self, error: FrameError, out: &mut dyn FnMut(PeerMessage)) {
+        self.rig.controller.link_error(error, out);
+    }
+
+    fn standing(&mut self, ticket: Ticket, standing: Standing) {
+        self.standings.push((ticket, standing));
+    }
+
+    fn promote(&mut self, ticket: Ticket) -> Option<Ticket> {
+        assert_eq!(ticket, LOBBY, "only a lobby connection asks");
+        self.slot
+    }
+
+    fn end(&mut self, session: &mut Session, ticket: Ticket) {
+        self.rig.controller.end_session(session);
+        self.ended.push(ticket);
+    }
+}
+
+/// Feeds `bytes` to `connection` at `now`; what it answers, and whether it closes.
+fn feed(
+    connection: &mut Connection,
+    port: &mut RigPort,
+    now: u64,
+    bytes: &[u8],
+) -> (Vec<PeerMessage>, bool) {
+    let mut out = Vec::new();
+    for &byte in bytes {
+        match connection.receive(byte, now, port) {
+            Received::Nothing => {}
+            Received::Send(message) => out.push(message),
+            Received::SendAndClose(message) => {
+                out.push(message);
+                return (out, true);
+            }
+        }
+    }
+    (out, false)
+}
+
+fn request_frame(id: u32, command: Command) -> Vec<u8> {
+    frame(
+        &Request {
+            id: RequestId(id),
+            command,
+        },
         None,
-        "an authenticated session stays"
-    );
+    )
+}
+
+fn hello() -> Command {
+    Command::Hello {
+        protocol_version: PROTOCOL_VERSION,
+    }
+}
+
+fn replied(messages: &[PeerMessage]) -> Vec<Reply> {
+    messages
+        .iter()
+        .filter_map(|m| match m {
+            PeerMessage::Reply { reply, .. } => Some(reply.clone()),
+            _ => None,
+        })
+        .collect()
 }
 
 #[test]
-fn the_reserved_slot_may_only_authenticate_or_stop_until_it_has_authenticated() {
+fn unauthenticated_network_connections_are_closed_when_idle_and_lobby_ones_soon() {
+    let t0 = 10_000_000;
+    let deadlines = Deadlines::STANDARD;
+    let slot = SLOT;
+    let serial = Connection::open(LinkKind::Serial, Ticket::Serial, t0, deadlines);
+    assert_eq!(serial.close_at_us(), None);
+
     let mut rig = Rig::new(1, 0, plain());
     rig.ok(Command::SetKey { key: KEY });
-    let mut session = Session::new(LinkKind::Network);
-    session.keep_for_authentication();
-    let hello = Command::Hello {
-        protocol_version: PROTOCOL_VERSION,
-    };
-    assert!(matches!(
-        rig.send_on(&mut session, RequestId(1), hello),
-        Reply::Hello(_)
-    ));
-    let reply = rig.send_on(&mut session, RequestId(2), Command::Status);
-    assert_eq!(code(&reply), Some(ErrorCode::BUSY));
-    assert!(reason(&reply).contains("kept for a client that authenticates"));
-    assert_eq!(
-        rig.send_on(&mut session, RequestId(3), Command::EmergencyStop),
-        Reply::Ok
+    let mut port = RigPort::new(&mut rig);
+    let mut idle = Connection::open(LinkKind::Network, slot, t0, deadlines);
+    assert_eq!(idle.close_at_us(), Some(t0 + deadlines.idle_us));
+    feed(
+        &mut idle,
+        &mut port,
+        t0 + 3_000_000,
+        &request_frame(1, hello()),
     );
-    authenticated(&mut rig, &mut session);
-    assert!(matches!(
-        rig.send_on(&mut session, RequestId(4), Command::Status),
-        Reply::Status(_)
-    ));
+    assert_eq!(idle.close_at_us(), Some(t0 + 3_000_000 + deadlines.idle_us));
+    // Garbage is not a request: it keeps nobody open.
+    feed(&mut idle, &mut port, t0 + 4_000_000, &[1, 2, 3, 0]);
+    assert_eq!(idle.close_at_us(), Some(t0 + 3_000_000 + deadlines.idle_us));
+    assert_eq!(port.standings, [(slot, Standing::Spoke)]);
+    assert_eq!(
+        idle.send_deadline_us(t0 + 5_000_000),
+        t0 + 5_000_000 + deadlines.send_us
+    );
+
+    let mut stop_only = Connection::open(LinkKind::Network, LOBBY, t0, deadlines);
+    feed(
+        &mut stop_only,
+        &mut port,
+        t0 + 1_000_000,
+        &request_frame(1, hello()),
+    );
+    assert_eq!(
+        stop_only.close_at_us(),
+        Some(t0 + deadlines.stop_only_us),
+        "talking does not keep a lobby connection"
+    );
+
+    // Authenticated through the connection: never closed for idleness, and its standing
+    // reaches the admission table.
+    let Received::Send(PeerMessage::Reply {
+        reply: Reply::Challenge { nonce },
+        ..
+    }) = request_frame(2, Command::AuthChallenge)
+        .iter()
+        .map(|&b| idle.receive(b, t0 + 5_000_000, &mut port))
+        .last()
+        .unwrap()
+    else {
+        panic!("no challenge");
+    };
+    let (out, closed) = feed(
+        &mut idle,
+        &mut port,
+        t0 + 5_000_000,
+        &request_frame(3, response(&KEY, &nonce)),
+    );
+    assert_eq!(replied(&out), [Reply::Ok]);
+    assert!(!closed);
+    assert_eq!(
+        idle.close_at_us(),
+        None,
+        "an authenticated connection stays"
+    );
+    assert_eq!(
+        port.standings.last(),
+        Some(&(slot, Standing::Authenticated))
+    );
+    // From the confirming reply on, its frames are sealed.
+    let mut buf = [0u8; MAX_FRAME];
+    let plain_len = encode_frame(&out[0], &mut buf).unwrap();
+    let sealed_len = idle.encode(&out[0], &mut buf).unwrap();
+    assert!(sealed_len > plain_len, "sealed: {sealed_len} > {plain_len}");
+    idle.end(&mut port);
+    assert_eq!(port.ended, [slot]);
+}
+
+#[test]
+fn a_lobby_connection_may_only_shake_hands_and_stop_and_is_closed_after_anything_else() {
+    let mut rig = Rig::new(1, 0, plain());
+    rig.ok(Command::SetKey { key: KEY });
+    let mut port = RigPort::new(&mut rig);
+    let mut connection = Connection::open(LinkKind::Network, LOBBY, 0, Deadlines::STANDARD);
+    let (out, closed) = feed(&mut connection, &mut port, 0, &request_frame(1, hello()));
+    assert!(matches!(replied(&out)[..], [Reply::Hello(_)]), "{out:?}");
+    assert!(!closed);
+    let (out, closed) = feed(
+        &mut connection,
+        &mut port,
+        0,
+        &request_frame(2, Command::EmergencyStop),
+    );
+    assert_eq!(replied(&out), [Reply::Ok]);
+    assert!(!closed);
+    assert!(port.rig.status().emergency_stopped);
+
+    for command in [Command::Status, Command::AuthChallenge] {
+        let mut connection = Connection::open(LinkKind::Network, LOBBY, 0, Deadlines::STANDARD);
+        feed(&mut connection, &mut port, 0, &request_frame(1, hello()));
+        let (out, closed) = feed(&mut connection, &mut port, 0, &request_frame(2, command));
+        let [reply] = &replied(&out)[..] else {
+            panic!("{out:?}");
+        };
+        assert_eq!(code(reply), Some(ErrorCode::BUSY));
+        assert!(
+            reason(reply).contains("only Hello and EmergencyStop"),
+            "{reply:?}"
+        );
+        assert!(closed, "closed after the refusal");
+    }
+
+    // Given a slot when it speaks, it has full rights from that request on, and its
+    // deadlines are those of a slot.
+    port.slot = Some(SLOT);
+    let mut connection = Connection::open(LinkKind::Network, LOBBY, 0, Deadlines::STANDARD);
+    feed(&mut connection, &mut port, 10, &request_frame(1, hello()));
+    assert_eq!(connection.ticket(), SLOT);
+    assert_eq!(
+        connection.close_at_us(),
+        Some(10 + Deadlines::STANDARD.idle_us)
+    );
+    let (out, closed) = feed(
+        &mut connection,
+        &mut port,
+        20,
+        &request_frame(2, Command::Status),
+    );
+    assert!(matches!(replied(&out)[..], [Reply::Status(_)]), "{out:?}");
+    assert!(!closed);
+    assert_eq!(port.standings.last(), Some(&(SLOT, Standing::Spoke)));
 }

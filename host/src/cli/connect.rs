@@ -8,6 +8,9 @@ use clap::Args;
 use crate::link::{AccessKey, Client, ClientError, ClientOptions, Endpoint};
 use optalign_protocol::ErrorCode;
 
+/// How long connecting, and each request, may take in all unless told otherwise, ms.
+pub const DEFAULT_DEADLINE_MS: u64 = 10_000;
+
 /// Where the controller is and how to authenticate.
 #[derive(Debug, Args)]
 pub struct ControllerArgs {
@@ -22,24 +25,33 @@ pub struct ControllerArgs {
     /// 600,000).
     #[arg(long, default_value_t = 1500, value_name = "MS", value_parser = clap::value_parser!(u64).range(1..=600_000))]
     pub timeout_ms: u64,
+    /// How long connecting, and each request, may take in all (retransmissions and
+    /// reconnects included), in milliseconds; `stop` keeps trying this long.
+    #[arg(long, default_value_t = DEFAULT_DEADLINE_MS, value_name = "MS", value_parser = clap::value_parser!(u64).range(1..=3_600_000))]
+    pub deadline_ms: u64,
 }
 
 impl ControllerArgs {
     pub async fn connect(&self) -> anyhow::Result<Client> {
+        Client::connect(self.controller.clone(), self.options()?)
+            .await
+            .with_context(|| format!("connecting to {}", self.controller))
+    }
+
+    /// How the client behaves, from the flags.
+    pub fn options(&self) -> anyhow::Result<ClientOptions> {
         let key = self
             .key
             .as_deref()
             .map(str::parse::<AccessKey>)
             .transpose()
             .context("reading the access key (--key or OPTALIGN_KEY)")?;
-        let options = ClientOptions {
+        Ok(ClientOptions {
             key,
             request_timeout: Duration::from_millis(self.timeout_ms),
+            deadline: Duration::from_millis(self.deadline_ms),
             ..ClientOptions::default()
-        };
-        Client::connect(self.controller.clone(), options)
-            .await
-            .with_context(|| format!("connecting to {}", self.controller))
+        })
     }
 
     /// Adds what the user can do about a refusal (a missing key, say) to a client error.

@@ -1,8 +1,13 @@
 //! `optalign move`, `optalign stop` and `optalign clear-emergency`.
 
-use anyhow::bail;
+use std::time::Duration;
+
+use anyhow::{Context, bail};
 use clap::Args;
-use optalign_protocol::{AxisValue, Command, MoveOutcome};
+use optalign_protocol::{AxisValue, Command, ErrorCode, MoveOutcome};
+
+use crate::link::client::emergency_stop;
+use crate::link::{Client, ClientError};
 
 use super::axes::{check_axes, parse_axis_value};
 use super::connect::ControllerArgs;
@@ -43,6 +48,9 @@ pub async fn run_move(args: MoveArgs) -> anyhow::Result<()> {
     }
 }
 
+/// The pause between two tries of `optalign stop`.
+const STOP_RETRY: Duration = Duration::from_millis(50);
+
 #[derive(Debug, Args)]
 pub struct StopArgs {
     #[command(flatten)]
@@ -52,23 +60,47 @@ pub struct StopArgs {
     emergency: bool,
 }
 
+/// Stops, trying again (a new connection each time) until the deadline (`--deadline-ms`):
+/// a controller restarting, or busy with strangers' connections, still gets the stop.
 pub async fn run_stop(args: StopArgs) -> anyhow::Result<()> {
-    let client = args.controller.connect().await?;
+    let options = args.controller.options()?;
+    let endpoint = &args.controller.controller;
     if args.emergency {
-        client
-            .command_ok(Command::EmergencyStop)
+        // Open to everyone: no key, no authentication to wait for.
+        emergency_stop(endpoint, &options)
             .await
-            .map_err(|e| args.controller.explain(e))?;
+            .map_err(|e| args.controller.explain(e))
+            .with_context(|| format!("emergency stop of {endpoint}"))?;
         crate::say!(
             "emergency stop: all axes stopped, coils off; moves are refused until `optalign clear-emergency`"
         );
-    } else {
-        client
-            .command_ok(Command::Stop)
-            .await
-            .map_err(|e| args.controller.explain(e))?;
-        crate::say!("stop: all axes decelerating to rest");
+        return Ok(());
     }
+    let deadline = tokio::time::Instant::now() + options.deadline;
+    loop {
+        let attempt = async {
+            Client::connect(endpoint.clone(), options.clone())
+                .await?
+                .command_ok(Command::Stop)
+                .await
+        };
+        let error = match tokio::time::timeout_at(deadline, attempt).await {
+            Ok(Ok(())) => break,
+            Ok(Err(error)) => error,
+            Err(_) => bail!("stop of {endpoint}: no answer within --deadline-ms"),
+        };
+        let lasting = matches!(
+            error,
+            ClientError::VersionMismatch { .. } | ClientError::Impostor { .. }
+        ) || error.code().is_some_and(|code| code != ErrorCode::BUSY);
+        if lasting || tokio::time::Instant::now() + STOP_RETRY >= deadline {
+            return Err(args.controller.explain(error))
+                .with_context(|| format!("stop of {endpoint}"));
+        }
+        tracing::debug!(%error, "stop not through yet; trying again");
+        tokio::time::sleep(STOP_RETRY).await;
+    }
+    crate::say!("stop: all axes decelerating to rest");
     Ok(())
 }
 

@@ -40,8 +40,8 @@ pub struct PeerArgs {
     /// Simulated time runs this many times faster than real time; 0 completes moves instantly.
     #[arg(long, default_value_t = 1.0)]
     time_scale: f64,
-    /// Network clients served at once; the last free slot is kept for a client that
-    /// authenticates (to take control).
+    /// Network clients served at once (1..=16); when all are taken, a newcomer evicts an
+    /// unauthenticated client, or may only stop the motors if every one authenticated.
     #[arg(long, default_value_t = 4)]
     max_clients: usize,
 }

@@ -12,7 +12,7 @@ use anyhow::{Context, bail};
 use async_trait::async_trait;
 use optalign_optics::seeds::{cavity_offsets, michelson_offsets, relay_offsets};
 use optalign_optics::{Cavity, Frame, Michelson, Relay, Station};
-use optalign_protocol::{AxisValue, Command, MoveOutcome};
+use optalign_protocol::{AxisValue, MoveOutcome};
 
 use super::camera::{Camera, CommandCamera, FolderCamera, SimCamera, SimScene, SimView};
 use super::mover::{CameraMover, CommandMover, HttpMover, ManualMover, SimMover};
@@ -400,7 +400,7 @@ impl Rig for LabRig {
         let stops = self
             .controllers
             .iter()
-            .map(|client| client.command_ok(Command::EmergencyStop));
+            .map(|client| client.emergency_stop());
         let results = futures::future::join_all(stops).await;
         let mut failed = Vec::new();
         for (result, spec) in results.into_iter().zip(&self.rig.controllers) {

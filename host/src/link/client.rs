@@ -22,9 +22,15 @@
 //! seal. An `Ok` that is not sealed means the answer did not come from a controller holding
 //! the key, and the connection is refused. While the controller backs off after failed
 //! authentications, the client waits as long as it is told and tries again.
+//!
+//! Deadlines: every request, retransmissions and reconnects included, and every connect
+//! has one overall deadline ([`ClientOptions::deadline`]). An emergency stop never waits
+//! behind the client's own connection (which a reconnect, the key derivation or an
+//! authentication backoff may hold): on a network link it goes out on a keyless
+//! connection of its own, retried until the deadline ([`emergency_stop`]).
 
 use std::collections::HashMap;
-use std::sync::atomic::{AtomicU32, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
@@ -50,6 +56,10 @@ const AUTH_TRIES: u32 = 4;
 /// The longest backoff the client waits out before trying again.
 const LONGEST_BACKOFF: Duration = Duration::from_secs(10);
 
+/// The pause before connecting again to a controller that had no room, and between two
+/// tries of an emergency stop.
+const RETRY_PAUSE: Duration = Duration::from_millis(50);
+
 /// How a client behaves on a slow or failing link.
 #[derive(Clone, Debug)]
 pub struct ClientOptions {
@@ -63,6 +73,9 @@ pub struct ClientOptions {
     pub connect_timeout: Duration,
     /// How long one write may wait for the controller to take the bytes.
     pub send_timeout: Duration,
+    /// How long one request (or one connect) may take in all, retransmissions,
+    /// reconnects and authentication backoffs included.
+    pub deadline: Duration,
 }
 
 impl Default for ClientOptions {
@@ -73,6 +86,7 @@ impl Default for ClientOptions {
             attempts: 4,
             connect_timeout: Duration::from_secs(3),
             send_timeout: Duration::from_secs(2),
+            deadline: Duration::from_secs(10),
         }
     }
 }
@@ -108,6 +122,14 @@ pub enum ClientError {
     },
     #[error("no answer from controller at {endpoint} after {attempts} attempts")]
     Timeout { endpoint: Endpoint, attempts: u32 },
+    #[error(
+        "{request} to controller at {endpoint} did not complete within its deadline of {deadline:?}"
+    )]
+    Deadline {
+        endpoint: Endpoint,
+        request: &'static str,
+        deadline: Duration,
+    },
     #[error("controller at {endpoint} sent an unexpected reply to {request}: {reply:?}")]
     UnexpectedReply {
         endpoint: Endpoint,
@@ -209,6 +231,9 @@ pub struct Client {
     derived: Mutex<Option<(u64, Key)>>,
     /// Connections established so far (a reconnect makes it more than one).
     connections: AtomicU32,
+    /// A write was cut short by a request's deadline: the link must be opened anew before
+    /// the next frame, which would otherwise be garbled.
+    interrupted: AtomicBool,
 }
 
 impl Client {
@@ -225,12 +250,36 @@ impl Client {
             identity: Mutex::new(None),
             derived: Mutex::new(None),
             connections: AtomicU32::new(0),
+            interrupted: AtomicBool::new(false),
         };
-        {
-            let mut connection = client.connection.lock().await;
-            client.open(&mut connection).await?;
-        }
+        let deadline = client.options.deadline;
+        tokio::time::timeout(deadline, client.first_open())
+            .await
+            .map_err(|_| ClientError::Deadline {
+                endpoint: client.endpoint.clone(),
+                request: "connecting",
+                deadline,
+            })??;
         Ok(client)
+    }
+
+    /// Opens the first connection, again while the controller has no room for it yet (its
+    /// slots taken: the connection was closed at once, or may only stop the motors) or a
+    /// setup reply did not come, until the deadline.
+    async fn first_open(&self) -> Result<(), ClientError> {
+        let mut connection = self.connection.lock().await;
+        loop {
+            match self.open(&mut connection).await {
+                Err(error @ (ClientError::Io { .. } | ClientError::Timeout { .. })) => {
+                    tracing::debug!(%error, "connection dropped or silent while being set up; again");
+                }
+                Err(ClientError::Rejected(error)) if error.code == ErrorCode::BUSY => {
+                    tracing::debug!(%error, "no slot for this connection yet; again");
+                }
+                outcome => return outcome,
+            }
+            tokio::time::sleep(RETRY_PAUSE).await;
+        }
     }
 
     pub fn endpoint(&self) -> &Endpoint {
@@ -280,10 +329,26 @@ impl Client {
         id: RequestId,
         command: Command,
     ) -> Result<Reply, ClientError> {
-        let request = Request { id, command };
+        let name = command.name();
+        let deadline = self.options.deadline;
+        tokio::time::timeout(deadline, self.attempts(Request { id, command }))
+            .await
+            .unwrap_or_else(|_| {
+                Err(ClientError::Deadline {
+                    endpoint: self.endpoint.clone(),
+                    request: name,
+                    deadline,
+                })
+            })
+    }
+
+    /// Sends `request` until it is answered, within the attempts.
+    async fn attempts(&self, request: Request) -> Result<Reply, ClientError> {
+        let id = request.id;
+        let attempts = self.options.attempts.max(1);
         let mut sent_to = None;
         let mut last_error = None;
-        for _ in 0..self.options.attempts.max(1) {
+        for attempt in 1..=attempts {
             match self.exchange(&request, &mut sent_to).await {
                 Ok(Reply::Error(error)) if error.code == ErrorCode::HANDSHAKE_REQUIRED => {
                     // The controller no longer knows this session (it restarted on a link
@@ -317,7 +382,9 @@ impl Client {
                 }
                 Err(error) => {
                     tracing::debug!(?id, %error, "retrying request");
-                    if matches!(error, ClientError::Io { .. } | ClientError::Connect { .. }) {
+                    if attempt < attempts
+                        && matches!(error, ClientError::Io { .. } | ClientError::Connect { .. })
+                    {
                         // The link failed at once (a controller restarting refuses or drops
                         // connections): wait as long as for a reply, so the attempts span
                         // the restart instead of being spent in a few milliseconds.
@@ -388,6 +455,9 @@ impl Client {
     /// stop too.
     async fn send(&self, request: &Request, sent_to: &mut Option<u64>) -> Result<(), ClientError> {
         let mut connection = self.connection.lock().await;
+        if self.interrupted.swap(false, Ordering::AcqRel) {
+            *connection = None;
+        }
         let alive = connection.as_ref().is_some_and(|c| !c.reader.is_finished());
         if !alive {
             *connection = None;
@@ -411,8 +481,12 @@ impl Client {
         let Some(open) = connection.as_mut() else {
             unreachable!("open() either connects or returns an error")
         };
+        // Marked until the frame is out: a deadline cutting the write short leaves it set.
+        self.interrupted.store(true, Ordering::Release);
         let written = write_frame_sealed(&mut open.writer, request, open.sealer.as_mut());
-        if let Err(error) = self.bounded(written).await {
+        let written = self.bounded(written).await;
+        self.interrupted.store(false, Ordering::Release);
+        if let Err(error) = written {
             // A frame cut short would garble the next one: start over on a new link.
             *connection = None;
             return Err(error);
@@ -669,6 +743,16 @@ impl Client {
         }
     }
 
+    /// Stops every axis at once and latches motion off, without waiting behind this
+    /// client's own connection on a network link (see [`emergency_stop`]).
+    pub async fn emergency_stop(&self) -> Result<(), ClientError> {
+        if self.endpoint.is_serial() {
+            // One port, one reader: the serial link has no key to derive nor backoff.
+            return self.command_ok(Command::EmergencyStop).await;
+        }
+        emergency_stop(&self.endpoint, &self.options).await
+    }
+
     /// Sends a command whose only good answer is `Ok`.
     pub async fn command_ok(&self, command: Command) -> Result<(), ClientError> {
         let name = command.name();
@@ -802,6 +886,51 @@ impl Client {
     pub async fn disconnect(&self) {
         *self.connection.lock().await = None;
     }
+}
+
+/// Sends `EmergencyStop` to the controller at `endpoint` on a keyless connection of its
+/// own (an emergency stop is open to everyone), trying again until `options.deadline`:
+/// nothing another connection does (a reconnect, the key derivation, an authentication
+/// backoff) delays it, and a controller whose slots are all taken still answers it.
+pub async fn emergency_stop(
+    endpoint: &Endpoint,
+    options: &ClientOptions,
+) -> Result<(), ClientError> {
+    let keyless = ClientOptions {
+        key: None,
+        attempts: 1,
+        ..options.clone()
+    };
+    let deadline = tokio::time::Instant::now() + options.deadline;
+    let mut last_error = None;
+    loop {
+        let attempt = async {
+            let client = Client::connect(endpoint.clone(), keyless.clone()).await?;
+            client.command_ok(Command::EmergencyStop).await
+        };
+        match tokio::time::timeout_at(deadline, attempt).await {
+            Ok(Ok(())) => return Ok(()),
+            Ok(Err(
+                error @ (ClientError::VersionMismatch { .. } | ClientError::Impostor { .. }),
+            )) => {
+                return Err(error);
+            }
+            Ok(Err(error)) => {
+                tracing::debug!(%error, "emergency stop not through yet; trying again");
+                last_error = Some(error);
+            }
+            Err(_) => break,
+        }
+        if tokio::time::Instant::now() + RETRY_PAUSE >= deadline {
+            break;
+        }
+        tokio::time::sleep(RETRY_PAUSE).await;
+    }
+    Err(last_error.unwrap_or(ClientError::Deadline {
+        endpoint: endpoint.clone(),
+        request: "EmergencyStop",
+        deadline: options.deadline,
+    }))
 }
 
 /// A move the controller accepted, as the client waits for its end.

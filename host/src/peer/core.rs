@@ -31,8 +31,9 @@ pub struct PeerOptions {
     /// `FILE.mounts.json` beside it.
     pub state_file: Option<PathBuf>,
     pub time: TimeMode,
-    /// Network clients served at once (at least 2); the last free slot is kept for a
-    /// client that authenticates, so observers cannot lock out a new controlling client.
+    /// Network slots (1..=16): connections served at once with full rights; a newcomer
+    /// evicts an unauthenticated one when all are taken (see
+    /// [`optalign_firmware::admission`]).
     pub max_clients: usize,
 }
 
@@ -114,8 +115,9 @@ impl PeerCore {
             options.axes
         );
         anyhow::ensure!(
-            options.max_clients >= 2,
-            "--max-clients must be at least 2 (one slot is kept for a controlling client), got {}",
+            (1..=optalign_firmware::admission::MAX_SLOTS).contains(&options.max_clients),
+            "--max-clients must be 1..={}, got {}",
+            optalign_firmware::admission::MAX_SLOTS,
             options.max_clients
         );
         let clock = SimClock::new(options.time);

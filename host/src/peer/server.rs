@@ -1,51 +1,43 @@
 //! Serving a [`PeerCore`] over TCP and a pseudo-terminal, with the motion loop that keeps
 //! stepping the mounts on the simulated clock.
 //!
-//! Bounded like a board: at most `max_clients` network connections (one more is answered
-//! `busy` and closed, and the last free slot is kept for a client that authenticates), and
-//! a bounded reply queue per connection, so a client that does not read its replies stops
-//! being read instead of growing the peer's memory.
-//!
-//! Sessions as on a board: frames are checked against the session (sealed only once it
-//! authenticated), every frame written after authentication is sealed, notifications
-//! included, and a network connection that has not authenticated is closed when its
-//! session says so (idle for a few seconds, or too long on the reserved slot), on the wall
-//! clock whatever the simulated time.
+//! Every connection runs the firmware core's [`Connection`], as a board's links do, so the
+//! rules of a connection live in one place: frames checked against the session and sealed
+//! once it authenticated, unauthenticated connections closed when idle, a write the client
+//! does not take within its deadline closing the connection (so a client that never reads
+//! its replies holds nothing), and network places decided by the core's admission table
+//! (`max_clients` slots and a lobby, where a newcomer may shake hands and stop until a
+//! request of its own earns it a slot, evicting an unauthenticated connection). Deadlines
+//! run on the wall clock whatever the simulated time.
 
 use std::net::SocketAddr;
-use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::Duration;
 
-use optalign_firmware::{LinkKind, Session};
-use optalign_protocol::seal::Sealer;
-use optalign_protocol::{Command, ErrorCode, ErrorReply, PeerMessage, Reply, Request};
-use tokio::io::{AsyncRead, AsyncWrite};
-use tokio::net::{TcpListener, TcpStream};
-use tokio::sync::{Notify, broadcast, mpsc};
+use optalign_firmware::admission::{self, Admission, Admissions, Standing, Ticket};
+use optalign_firmware::{Connection, Deadlines, LinkKind, Port, Received, Session};
+use optalign_protocol::{Command, FrameError, MAX_FRAME, PeerMessage, Request};
+use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
+use tokio::net::TcpListener;
+use tokio::sync::{Notify, broadcast};
 use tokio::task::{JoinHandle, JoinSet};
 
 use super::bench::{self, Bench};
 use super::clock::TimeMode;
 use super::core::{PeerCore, PeerOptions};
-use crate::link::framed::{FrameReader, write_frame, write_frame_sealed};
 
-/// Replies waiting to be written to one connection.
-const REPLY_QUEUE: usize = 32;
+/// The pause before the serial link serves a new session.
+const SERIAL_RESTART: Duration = Duration::from_millis(100);
 
-/// How long a refused connection gets to send its first request (to be answered by id).
-const REFUSAL_WAIT: Duration = Duration::from_secs(2);
-
-/// What the reader of a connection hands its writer: a message, and the sealer to seal it
-/// and every later frame with when the session has just authenticated.
-type Outgoing = (PeerMessage, Option<Sealer>);
+/// The network admission table; a token is the signal that closes its connection.
+type NetworkSlots = Admissions<Arc<Notify>>;
 
 /// A running simulated controller.
 pub struct SimPeer {
     core: Arc<Mutex<PeerCore>>,
-    max_clients: usize,
-    /// Network connections open now.
-    clients: Arc<AtomicUsize>,
+    network: Mutex<NetworkSlots>,
+    /// The wall clock of connection deadlines and admissions.
+    started: tokio::time::Instant,
     wake: Arc<Notify>,
     notifications: broadcast::Sender<PeerMessage>,
     tasks: Mutex<Vec<JoinHandle<()>>>,
@@ -68,8 +60,8 @@ impl SimPeer {
         let (notifications, _) = broadcast::channel(256);
         let peer = Arc::new(Self {
             core: Arc::new(Mutex::new(core)),
-            max_clients: options.max_clients,
-            clients: Arc::default(),
+            network: Mutex::new(Admissions::new(options.max_clients, admission::LOBBY)),
+            started: tokio::time::Instant::now(),
             wake: Arc::new(Notify::new()),
             notifications,
             tasks: Mutex::new(Vec::new()),
@@ -109,23 +101,14 @@ impl SimPeer {
         replies
     }
 
-    /// Network connections open now.
+    /// Network connections open now (in slots and the lobby).
     pub fn network_clients(&self) -> usize {
-        self.clients.load(Ordering::SeqCst)
+        lock(&self.network).open()
     }
 
-    /// Takes a network slot, if one is free; the last one comes reserved.
-    fn take_slot(&self) -> Option<Slot> {
-        let max = self.max_clients;
-        self.clients
-            .fetch_update(Ordering::SeqCst, Ordering::SeqCst, |open| {
-                (open < max).then_some(open + 1)
-            })
-            .ok()
-            .map(|open| Slot {
-                clients: self.clients.clone(),
-                reserved: open + 1 == max,
-            })
+    /// Microseconds of wall clock since the peer started: the clock of connections.
+    fn wall_us(&self) -> u64 {
+        u64::try_from(self.started.elapsed().as_micros()).unwrap_or(u64::MAX)
     }
 
     /// True shaft positions of the mounts: hidden truth.
@@ -161,17 +144,27 @@ impl SimPeer {
                 match listener.accept().await {
                     Ok((stream, remote)) => {
                         let _ = stream.set_nodelay(true);
-                        let Some(slot) = peer.take_slot() else {
-                            tracing::warn!(%remote, "client refused: every slot is taken");
-                            tokio::spawn(refuse(stream, peer.max_clients));
-                            continue;
+                        let now = peer.wall_us();
+                        let closer = Arc::new(Notify::new());
+                        let admission = lock(&peer.network).admit(now, closer.clone());
+                        let ticket = match admission {
+                            Admission::Slot(ticket) => ticket,
+                            Admission::Lobby { ticket, evicted } => {
+                                evict(evicted);
+                                ticket
+                            }
+                            Admission::Refused => {
+                                tracing::warn!(%remote, "client refused: the lobby is full");
+                                continue;
+                            }
                         };
-                        tracing::info!(%remote, reserved = slot.reserved, "client connected");
+                        tracing::info!(%remote, ?ticket, "client connected");
+                        let connection =
+                            Connection::open(LinkKind::Network, ticket, now, Deadlines::STANDARD);
                         let peer = peer.clone();
                         connections.spawn(async move {
-                            peer.serve_on(stream, LinkKind::Network, slot.reserved)
+                            peer.serve_connection(stream, connection, Some(closer))
                                 .await;
-                            drop(slot);
                             tracing::info!(%remote, "client disconnected");
                         });
                     }
@@ -192,100 +185,119 @@ impl SimPeer {
             .ok_or_else(|| anyhow::anyhow!("the pseudo-terminal has no path"))?;
         *lock(&self.pty_terminal) = Some(terminal_side);
         let peer = self.clone();
-        let serve =
-            tokio::spawn(async move { peer.serve(controller_side, LinkKind::Serial).await });
+        let serve = tokio::spawn(async move {
+            let mut controller_side = controller_side;
+            // A new session whenever one ends (a write nobody took in time, say), as a
+            // board's serial link does.
+            loop {
+                peer.serve(&mut controller_side).await;
+                tokio::time::sleep(SERIAL_RESTART).await;
+            }
+        });
         self.track(serve);
         Ok(path)
     }
 
-    /// Serves one byte stream until it ends, then ends its session (releasing control).
-    pub async fn serve<S>(self: &Arc<Self>, stream: S, link: LinkKind)
+    /// Serves one trusted (serial) byte stream until it ends, then ends its session
+    /// (releasing control).
+    pub async fn serve<S>(self: &Arc<Self>, stream: S)
     where
-        S: AsyncRead + AsyncWrite + Send + 'static,
+        S: AsyncRead + AsyncWrite,
     {
-        self.serve_on(stream, link, false).await;
+        let connection = Connection::open(
+            LinkKind::Serial,
+            Ticket::Serial,
+            self.wall_us(),
+            Deadlines::STANDARD,
+        );
+        self.serve_connection(stream, connection, None).await;
     }
 
-    /// Serves one byte stream; on a `reserved` slot, nothing but the handshake,
-    /// authentication and emergency stops is served until the session authenticates (and
-    /// the connection is closed after anything else).
-    async fn serve_on<S>(self: &Arc<Self>, stream: S, link: LinkKind, reserved: bool)
-    where
-        S: AsyncRead + AsyncWrite + Send + 'static,
+    /// Serves `connection` on `stream` until it is closed (by the stream, its deadlines
+    /// or `evicted`), then ends it.
+    async fn serve_connection<S>(
+        self: &Arc<Self>,
+        stream: S,
+        mut connection: Connection,
+        evicted: Option<Arc<Notify>>,
+    ) where
+        S: AsyncRead + AsyncWrite,
     {
-        let (read, mut write) = tokio::io::split(stream);
-        let (replies, mut outgoing) = mpsc::channel::<Outgoing>(REPLY_QUEUE);
+        let (mut read, mut write) = tokio::io::split(stream);
         let mut notifications = self.notifications.subscribe();
-        let mut writer = AbortOnDrop(tokio::spawn(async move {
-            let mut sealer = None;
-            loop {
-                let message = tokio::select! {
-                    reply = outgoing.recv() => match reply {
-                        Some((reply, fresh)) => {
-                            sealer = fresh.or(sealer);
-                            reply
-                        }
-                        None => return,
-                    },
-                    note = notifications.recv() => match note {
-                        Ok(note) => note,
-                        Err(broadcast::error::RecvError::Lagged(_)) => continue,
-                        Err(broadcast::error::RecvError::Closed) => return,
-                    },
-                };
-                if write_frame_sealed(&mut write, &message, sealer.as_mut())
-                    .await
-                    .is_err()
-                {
-                    return;
-                }
-            }
-        }));
-        let mut reader = FrameReader::<_, Request>::new(read);
-        let opened = tokio::time::Instant::now();
-        let wall_us = move || u64::try_from(opened.elapsed().as_micros()).unwrap_or(u64::MAX);
-        let mut session = Session::opened(link, 0);
-        if reserved {
-            session.keep_for_authentication();
-        }
+        let mut port = PeerPort(self);
+        let mut bytes = [0u8; 1024];
         'stream: loop {
-            let close = session
+            let close = connection
                 .close_at_us()
-                .map(|at| opened + Duration::from_micros(at));
-            let frame = tokio::select! {
-                frame = reader.next_checked(session.inbound()) => frame,
+                .map(|at| self.started + Duration::from_micros(at));
+            tokio::select! {
+                read = read.read(&mut bytes) => {
+                    let count = match read {
+                        Ok(0) | Err(_) => break,
+                        Ok(count) => count,
+                    };
+                    for &byte in &bytes[..count] {
+                        let (message, then_close) =
+                            match connection.receive(byte, self.wall_us(), &mut port) {
+                                Received::Nothing => continue,
+                                Received::Send(message) => (message, false),
+                                Received::SendAndClose(message) => (message, true),
+                            };
+                        if self.send(&mut write, &mut connection, &message).await.is_err()
+                            || then_close
+                        {
+                            break 'stream;
+                        }
+                    }
+                }
+                note = notifications.recv() => match note {
+                    Ok(note) => {
+                        if self.send(&mut write, &mut connection, &note).await.is_err() {
+                            break;
+                        }
+                    }
+                    // Notifications this client was too slow for: it falls back to Status.
+                    Err(broadcast::error::RecvError::Lagged(_)) => {}
+                    Err(broadcast::error::RecvError::Closed) => break,
+                },
                 () = sleep_until_or_never(close) => {
                     tracing::info!("closing a connection that did not authenticate in time");
                     break;
                 }
-            };
-            let Ok(Some(frame)) = frame else {
-                break;
-            };
-            let mut close_after = false;
-            let answers = match frame {
-                Ok(request) => {
-                    session.heard(wall_us());
-                    close_after = session.refuses_on_reserved_slot(&request.command);
-                    self.core().handle(&mut session, &request)
+                () = notified_or_never(evicted.as_deref()) => {
+                    tracing::info!("closing an unauthenticated connection for a newcomer");
+                    break;
                 }
-                Err(error) => self.core().link_error(error),
-            };
-            self.wake.notify_one();
-            let mut sealer = session.take_sealer();
-            for answer in answers {
-                // Waits while the client is not reading: it is not read either then.
-                if replies.send((answer, sealer.take())).await.is_err() {
-                    break 'stream;
-                }
-            }
-            if close_after {
-                break;
             }
         }
-        self.core().end_session(&mut session);
-        drop(replies);
-        let _ = (&mut writer.0).await;
+        connection.end(&mut port);
+    }
+
+    /// Writes one message as one frame within the connection's send deadline.
+    async fn send<W: AsyncWrite + Unpin>(
+        &self,
+        write: &mut W,
+        connection: &mut Connection,
+        message: &PeerMessage,
+    ) -> Result<(), ()> {
+        let mut frame = [0u8; MAX_FRAME];
+        let len = connection.encode(message, &mut frame).map_err(|_| ())?;
+        let deadline =
+            self.started + Duration::from_micros(connection.send_deadline_us(self.wall_us()));
+        let written = tokio::time::timeout_at(deadline, async {
+            write.write_all(&frame[..len]).await?;
+            write.flush().await
+        })
+        .await;
+        match written {
+            Ok(Ok(())) => Ok(()),
+            Ok(Err(_)) => Err(()),
+            Err(_) => {
+                tracing::info!("closing a connection that does not take its replies");
+                Err(())
+            }
+        }
     }
 
     /// Cuts the controller's power: it falls silent at once, the listener and every
@@ -315,54 +327,57 @@ impl Drop for SimPeer {
     }
 }
 
-/// A task that ends with its owner (a connection's writer ends with the connection).
-struct AbortOnDrop(JoinHandle<()>);
+/// The peer's controller and admission table, as a connection reaches them.
+struct PeerPort<'a>(&'a SimPeer);
 
-impl Drop for AbortOnDrop {
-    fn drop(&mut self) {
-        self.0.abort();
+impl Port for PeerPort<'_> {
+    fn request(
+        &mut self,
+        session: &mut Session,
+        request: &Request,
+        out: &mut dyn FnMut(PeerMessage),
+    ) {
+        let answers = self.0.core().handle(session, request);
+        self.0.wake.notify_one();
+        answers.into_iter().for_each(out);
+    }
+
+    fn link_error(&mut self, error: FrameError, out: &mut dyn FnMut(PeerMessage)) {
+        self.0.core().link_error(error).into_iter().for_each(out);
+    }
+
+    fn standing(&mut self, ticket: Ticket, standing: Standing) {
+        lock(&self.0.network).standing(ticket, standing);
+    }
+
+    fn promote(&mut self, ticket: Ticket) -> Option<Ticket> {
+        let now = self.0.wall_us();
+        let promotion = lock(&self.0.network).promote(ticket, now)?;
+        evict(promotion.evicted);
+        Some(promotion.ticket)
+    }
+
+    fn end(&mut self, session: &mut Session, ticket: Ticket) {
+        self.0.core().end_session(session);
+        lock(&self.0.network).release(ticket);
+        self.0.wake.notify_one();
     }
 }
 
-/// One network connection's place among `max_clients`; freed when dropped.
-struct Slot {
-    clients: Arc<AtomicUsize>,
-    /// The last free slot: kept for a client that authenticates.
-    reserved: bool,
-}
-
-impl Drop for Slot {
-    fn drop(&mut self) {
-        self.clients.fetch_sub(1, Ordering::SeqCst);
+/// Closes the connection an admission or promotion evicted, if any.
+fn evict(evicted: Option<Arc<Notify>>) {
+    if let Some(evicted) = evicted {
+        tracing::info!("evicting an unauthenticated client");
+        evicted.notify_one();
     }
 }
 
-fn full(max_clients: usize) -> ErrorReply {
-    ErrorReply::new(
-        ErrorCode::BUSY,
-        format_args!(
-            "all {max_clients} network client slots are taken: close one, or use the serial link"
-        ),
-    )
-}
-
-fn refusal(id: optalign_protocol::RequestId, error: ErrorReply) -> PeerMessage {
-    PeerMessage::Reply {
-        id,
-        reply: Reply::Error(error),
+/// Waits for `signal`, or forever without one.
+async fn notified_or_never(signal: Option<&Notify>) {
+    match signal {
+        Some(signal) => signal.notified().await,
+        None => std::future::pending().await,
     }
-}
-
-/// Answers the first request of a connection there is no slot for with `busy`, then
-/// closes it.
-async fn refuse(stream: TcpStream, max_clients: usize) {
-    let (read, mut write) = stream.into_split();
-    let mut reader = FrameReader::<_, Request>::new(read);
-    let message = match tokio::time::timeout(REFUSAL_WAIT, reader.next()).await {
-        Ok(Ok(Some(Ok(request)))) => refusal(request.id, full(max_clients)),
-        _ => PeerMessage::LinkError(full(max_clients)),
-    };
-    let _ = tokio::time::timeout(REFUSAL_WAIT, write_frame(&mut write, &message)).await;
 }
 
 /// Sleeps until `deadline`, or forever without one.
