@@ -27,7 +27,7 @@
 
 mod axis;
 mod backoff;
-#[cfg(any(feature = "board", feature = "emu"))]
+#[cfg(feature = "_embassy")]
 pub mod board;
 pub mod config;
 mod control;
