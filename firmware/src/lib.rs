@@ -37,6 +37,7 @@ pub mod driver;
 pub mod gear;
 pub mod mark;
 mod motion;
+pub mod nonce;
 mod outcomes;
 pub mod path;
 pub mod ramp;

@@ -7,6 +7,9 @@
 //! that never calls [`seed`] (the emulator's) is seeded from the ring oscillator at the
 //! first draw. [`SEED_SAMPLES`] bytes of the source are hashed with SHA-256 together with
 //! the uptime in microseconds and a label; the digest seeds ChaCha20 (`rand_chacha`).
+//!
+//! Uniqueness does not rest on this entropy: the core mixes a persisted boot counter, the
+//! board id and a draw counter into every challenge (`crate::nonce`).
 
 use core::cell::RefCell;
 
