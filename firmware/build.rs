@@ -1,10 +1,12 @@
-//! Build script: only does something for the RP2040 images (features `board`, `emu`) on a
-//! `thumbv6m` target; host builds of the core skip it.
+//! Build script: only does something for the images on a Raspberry Pi chip (features
+//! `rp2040`, `rp235x`) on a bare-metal ARM target; host builds of the core skip it.
 //!
-//! 1. Puts `memory.x` on the linker search path and passes the linker scripts to the
-//!    binaries: `link.x` (cortex-m-rt), `link-rp.x` (embassy-rp: places the boot2 loader at
-//!    the start of flash) and, for the board image, `defmt.x`.
-//! 2. For the board image, finds the CYW43439 board nvram (radio configuration), which is
+//! 1. Puts the chip's memory map (`memory-rp2040.x` or `memory-rp235x.x`) on the linker
+//!    search path as `memory.x` and passes the linker scripts to the binaries: `link.x`
+//!    (cortex-m-rt), on the RP2040 `link-rp.x` (embassy-rp: places the boot2 loader at the
+//!    start of flash; the RP2350's map places the image definition block itself) and, for
+//!    the board images, `defmt.x`.
+//! 2. For the board images, finds the CYW43439 board nvram (radio configuration), which is
 //!    not kept in this repository: `OPTALIGN_CYW43_NVRAM` names it (absolute, or relative
 //!    to the workspace root); unset, `../shared/cyw43/nvram_rp2040.bin` beside the
 //!    workspace is used. Its path goes to the crate as `OPTALIGN_CYW43_NVRAM_PATH`.
@@ -21,29 +23,50 @@ const NVRAM_MAX_LEN: usize = 4096;
 
 fn main() {
     println!("cargo:rerun-if-changed=build.rs");
-    println!("cargo:rerun-if-changed=memory.x");
     println!("cargo:rerun-if-env-changed={NVRAM_ENV}");
     let board = env::var_os("CARGO_FEATURE_BOARD").is_some();
-    let emu = env::var_os("CARGO_FEATURE_EMU").is_some();
     let target = env::var("TARGET").unwrap_or_default();
-    if !(board || emu) || !target.starts_with("thumbv6m") {
+    let chip = match (
+        env::var_os("CARGO_FEATURE_RP2040").is_some(),
+        env::var_os("CARGO_FEATURE_RP235X").is_some(),
+    ) {
+        (false, false) => return,
+        (true, false) => Chip::Rp2040,
+        (false, true) => Chip::Rp235x,
+        (true, true) => {
+            return println!("cargo::error=features rp2040 and rp235x exclude each other");
+        }
+    };
+    if !target.starts_with("thumbv") {
         return;
     }
+    if !target.starts_with(chip.target()) {
+        return println!(
+            "cargo::error=the {} images build for {}*, not {target}",
+            chip.name(),
+            chip.target()
+        );
+    }
+    let memory = chip.memory_map();
+    println!("cargo:rerun-if-changed={memory}");
     let Some(manifest) = env::var_os("CARGO_MANIFEST_DIR").map(PathBuf::from) else {
         return println!("cargo::error=CARGO_MANIFEST_DIR is not set");
     };
     let Some(out) = env::var_os("OUT_DIR").map(PathBuf::from) else {
         return println!("cargo::error=OUT_DIR is not set");
     };
-    if let Err(error) = fs::copy(manifest.join("memory.x"), out.join("memory.x")) {
+    if let Err(error) = fs::copy(manifest.join(memory), out.join("memory.x")) {
         return println!(
-            "cargo::error=cannot copy memory.x to {}: {error}",
+            "cargo::error=cannot copy {memory} to {}: {error}",
             out.display()
         );
     }
     println!("cargo:rustc-link-search={}", out.display());
-    for script in ["--nmagic", "-Tlink.x", "-Tlink-rp.x"] {
+    for script in ["--nmagic", "-Tlink.x"] {
         println!("cargo:rustc-link-arg-bins={script}");
+    }
+    if chip == Chip::Rp2040 {
+        println!("cargo:rustc-link-arg-bins=-Tlink-rp.x");
     }
     if board {
         println!("cargo:rustc-link-arg-bins=-Tdefmt.x");
@@ -60,6 +83,36 @@ fn main() {
             Err(message) => message
                 .lines()
                 .for_each(|line| println!("cargo::error={line}")),
+        }
+    }
+}
+
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Chip {
+    Rp2040,
+    Rp235x,
+}
+
+impl Chip {
+    fn name(self) -> &'static str {
+        match self {
+            Self::Rp2040 => "RP2040",
+            Self::Rp235x => "RP2350",
+        }
+    }
+
+    /// The target triple's prefix: Cortex-M0+ or Cortex-M33 with its FPU.
+    fn target(self) -> &'static str {
+        match self {
+            Self::Rp2040 => "thumbv6m-none-eabi",
+            Self::Rp235x => "thumbv8m.main-none-eabihf",
+        }
+    }
+
+    fn memory_map(self) -> &'static str {
+        match self {
+            Self::Rp2040 => "memory-rp2040.x",
+            Self::Rp235x => "memory-rp235x.x",
         }
     }
 }

@@ -21,6 +21,7 @@ use crate::driver::StepDriver;
 use crate::gear::{Gear, Travel};
 use crate::mark;
 use crate::motion::Move;
+use crate::nonce::NonceIssuer;
 use crate::outcomes::MoveLog;
 use crate::path::effective_backlash;
 use crate::record::{Record, WifiCredentials};
@@ -78,6 +79,10 @@ pub struct Controller<S: Storage> {
     pub(crate) control: ControlClaim,
     /// Drawn at start-up; reported in the handshake.
     pub(crate) boot_nonce: u64,
+    /// This boot's number: one more than the record's (see [`crate::nonce`]).
+    boots: u32,
+    /// Challenge nonces, issued once this boot's number is persisted.
+    pub(crate) nonces: NonceIssuer,
     boot: BootRecord,
     /// The axes the motion mark in storage names (as last read or written).
     marked: u8,
@@ -133,9 +138,9 @@ impl<S: Storage> Controller<S> {
         };
         let mut nonce = [0u8; 8];
         rng.fill(&mut nonce);
-        let (key, wifi) = match loaded {
-            Ok(Some(record)) => (record.key, record.wifi),
-            Ok(None) | Err(_) => (None, None),
+        let (key, wifi, boots) = match loaded {
+            Ok(Some(record)) => (record.key, record.wifi, record.boots),
+            Ok(None) | Err(_) => (None, None, 0),
         };
         Self {
             info,
@@ -155,6 +160,8 @@ impl<S: Storage> Controller<S> {
             emergency: false,
             control: ControlClaim::default(),
             boot_nonce: u64::from_le_bytes(nonce),
+            boots: boots.wrapping_add(1),
+            nonces: NonceIssuer::new(info.board_id),
             boot,
             marked,
             boot_us: now_us,
@@ -378,6 +385,7 @@ impl<S: Storage> Controller<S> {
             key: self.key,
             wifi: self.wifi.clone(),
             axes: self.axes.iter().map(Axis::record).collect(),
+            boots: self.boots,
         };
         let result = self.journal.save(&mut self.storage, &record);
         self.save_failed = result.is_err();
@@ -396,6 +404,17 @@ impl<S: Storage> Controller<S> {
             self.count_failure(error);
         }
         result
+    }
+
+    /// Makes this boot's number durable before the first nonce of the boot is issued, so
+    /// that no later boot can issue the same nonces (see [`crate::nonce`]).
+    pub(crate) fn count_boot(&mut self) -> Result<(), StorageError> {
+        if !self.nonces.is_counted() {
+            self.persist()?;
+            self.commit()?;
+            self.nonces.counted(self.boots);
+        }
+        Ok(())
     }
 
     /// Counts a failed write (a write merely postponed is no failure).

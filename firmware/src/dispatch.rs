@@ -23,7 +23,7 @@
 use heapless::String;
 use optalign_protocol::auth::{Nonce, session_key, verify_tag};
 use optalign_protocol::error_reply;
-use optalign_protocol::limits::{KEY_LEN, NONCE_LEN};
+use optalign_protocol::limits::KEY_LEN;
 use optalign_protocol::seal::{Direction, Opener, Sealer};
 use optalign_protocol::{
     Access, AxisConfig, AxisValue, Capabilities, Command, ErrorCode, ErrorReply, Faults,
@@ -34,6 +34,7 @@ use optalign_protocol::{
 use crate::config::validate;
 use crate::controller::Controller;
 use crate::motion::{AxisPlan, Move};
+use crate::nonce::NonceError;
 use crate::path::plan_path;
 use crate::record::WifiCredentials;
 use crate::replay::ReplyCache;
@@ -220,7 +221,7 @@ impl<S: Storage> Controller<S> {
     /// retransmission or a duplicated frame), which gets that same nonce: otherwise the
     /// client would answer the first nonce while the controller expects the second.
     fn challenge(
-        &self,
+        &mut self,
         session: &mut Session,
         id: RequestId,
         now: u64,
@@ -235,8 +236,23 @@ impl<S: Storage> Controller<S> {
         {
             return Ok(Reply::Challenge { nonce });
         }
-        let mut nonce = [0u8; NONCE_LEN];
-        rng.fill(&mut nonce);
+        self.count_boot().map_err(|error| {
+            error_reply!(
+                ErrorCode::STORAGE,
+                "no challenge before the boot counter is saved: {}",
+                error.describe()
+            )
+        })?;
+        let nonce = self.nonces.draw(rng).map_err(|error| match error {
+            NonceError::BootNotCounted => error_reply!(
+                ErrorCode::STORAGE,
+                "no challenge before the boot counter is saved"
+            ),
+            NonceError::Exhausted => error_reply!(
+                ErrorCode::STORAGE,
+                "every challenge nonce of this boot is used: reboot the board"
+            ),
+        })?;
         session.nonce = Some((id, nonce));
         Ok(Reply::Challenge { nonce })
     }

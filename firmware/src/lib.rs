@@ -29,7 +29,7 @@
 pub mod admission;
 mod axis;
 mod backoff;
-#[cfg(any(feature = "board", feature = "emu"))]
+#[cfg(feature = "_embassy")]
 pub mod board;
 pub mod config;
 pub mod connection;
@@ -40,6 +40,7 @@ pub mod driver;
 pub mod gear;
 pub mod mark;
 mod motion;
+pub mod nonce;
 mod outcomes;
 pub mod path;
 pub mod ramp;

@@ -4,7 +4,8 @@
 //! (u32), payload length (u16), the postcard payload, then the CRC-32C of everything
 //! before it. A slot that is all 0xFF (erased) or all 0x00 is blank; anything else that
 //! does not check out is invalid. Bump [`RECORD_VERSION`] whenever [`Record`] (or a
-//! protocol type inside it, such as `AxisConfig`) changes its encoding.
+//! protocol type inside it, such as `AxisConfig`) changes its encoding, and keep reading
+//! the versions before it (version 1 had no boot counter).
 
 use crc::{CRC_32_ISCSI, Crc};
 use heapless::{String, Vec};
@@ -16,7 +17,7 @@ use serde::{Deserialize, Serialize};
 pub const RECORD_LEN: usize = 1024;
 
 /// Version of the record layout.
-pub const RECORD_VERSION: u16 = 1;
+pub const RECORD_VERSION: u16 = 2;
 
 const MAGIC: [u8; 4] = *b"OPTA";
 const HEADER_LEN: usize = 12;
@@ -51,6 +52,28 @@ pub struct Record {
     pub key: Option<[u8; KEY_LEN]>,
     pub wifi: Option<WifiCredentials>,
     pub axes: Vec<AxisRecord, MAX_AXES>,
+    /// The number of the latest boot that issued a challenge nonce (see
+    /// [`crate::nonce`]).
+    pub boots: u32,
+}
+
+/// A record as version 1 wrote it: no boot counter.
+#[derive(Deserialize)]
+struct RecordV1 {
+    key: Option<[u8; KEY_LEN]>,
+    wifi: Option<WifiCredentials>,
+    axes: Vec<AxisRecord, MAX_AXES>,
+}
+
+impl From<RecordV1> for Record {
+    fn from(old: RecordV1) -> Self {
+        Self {
+            key: old.key,
+            wifi: old.wifi,
+            axes: old.axes,
+            boots: 0,
+        }
+    }
 }
 
 /// A slot that is neither blank nor a valid record.
@@ -93,10 +116,15 @@ fn decode_valid(slot: &[u8]) -> Option<(u32, Record)> {
     let len = usize::from(u16::from_le_bytes(field(10..12)?.try_into().ok()?));
     let end = HEADER_LEN + len;
     let stored = u32::from_le_bytes(field(end..end + CRC_LEN)?.try_into().ok()?);
-    if version != RECORD_VERSION || CRC32C.checksum(field(0..end)?) != stored {
+    if CRC32C.checksum(field(0..end)?) != stored {
         return None;
     }
-    let record = postcard::from_bytes(field(HEADER_LEN..end)?).ok()?;
+    let payload = field(HEADER_LEN..end)?;
+    let record = match version {
+        1 => postcard::from_bytes::<RecordV1>(payload).ok()?.into(),
+        RECORD_VERSION => postcard::from_bytes(payload).ok()?,
+        _ => return None,
+    };
     Some((sequence, record))
 }
 
@@ -123,6 +151,7 @@ mod tests {
                 passphrase: String::try_from("p".repeat(PASSPHRASE_LEN).as_str()).unwrap(),
             }),
             axes: [axis; MAX_AXES].into_iter().collect(),
+            boots: u32::MAX,
         }
     }
 
@@ -144,6 +173,40 @@ mod tests {
             bad[i] ^= 0x10;
             assert_eq!(decode(&bad), Err(InvalidSlot), "byte {i}");
         }
+    }
+
+    #[test]
+    fn a_version_1_record_is_read_with_no_boots_counted() {
+        #[derive(Serialize)]
+        struct V1<'a> {
+            key: &'a Option<[u8; KEY_LEN]>,
+            wifi: &'a Option<WifiCredentials>,
+            axes: &'a Vec<AxisRecord, MAX_AXES>,
+        }
+        let record = full_record();
+        let mut slot = [0; RECORD_LEN];
+        encode(&record, 3, &mut slot).unwrap();
+        // Rewrite the slot as version 1 did: the payload without the boot counter.
+        let old = V1 {
+            key: &record.key,
+            wifi: &record.wifi,
+            axes: &record.axes,
+        };
+        let len = postcard::to_slice(&old, &mut slot[HEADER_LEN..])
+            .unwrap()
+            .len();
+        slot[4..6].copy_from_slice(&1u16.to_le_bytes());
+        slot[10..12].copy_from_slice(&u16::try_from(len).unwrap().to_le_bytes());
+        let end = HEADER_LEN + len;
+        let crc = CRC32C.checksum(&slot[..end]);
+        slot[end..end + CRC_LEN].copy_from_slice(&crc.to_le_bytes());
+        let expected = Record { boots: 0, ..record };
+        assert_eq!(decode(&slot), Ok(Some((3, expected))));
+        // Another unknown version is invalid.
+        slot[4..6].copy_from_slice(&9u16.to_le_bytes());
+        let crc = CRC32C.checksum(&slot[..end]);
+        slot[end..end + CRC_LEN].copy_from_slice(&crc.to_le_bytes());
+        assert_eq!(decode(&slot), Err(InvalidSlot));
     }
 
     #[test]

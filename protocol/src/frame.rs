@@ -10,7 +10,7 @@
 //! [`Seal`] (counter and truncated MAC, see [`crate::seal`]): postcard messages delimit
 //! themselves, so what follows the message is the seal. [`encode_sealed_frame`] writes such
 //! frames; [`FrameDecoder::push_checked`] and [`FrameDecoder::feed_checked`] read them and
-//! check the seal against the receiver's [`Inbound`]. The plain [`FrameDecoder::push`] and
+//! check the seal against the receiver's [`Inbound`] before the message is decoded. The plain [`FrameDecoder::push`] and
 //! [`FrameDecoder::feed`] accept unsealed frames only.
 
 use core::fmt;
@@ -21,7 +21,7 @@ use serde::de::DeserializeOwned;
 
 use crate::error::ErrorCode;
 use crate::limits::{CRC_LEN, MAX_FRAME, MAX_PAYLOAD};
-use crate::seal::{Inbound, SEAL_LEN, Seal, Sealer};
+use crate::seal::{Accepted, Inbound, SEAL_LEN, Sealer};
 
 /// CRC-32C, slice-by-16 (a 16 KiB table in flash; several times faster than byte-wise).
 const CRC32C: Crc<u32, Table<16>> = Crc::<u32, Table<16>>::new(&CRC_32_ISCSI);
@@ -283,19 +283,23 @@ fn decode_plain<T: DeserializeOwned>(payload: &[u8]) -> Result<T, FrameError> {
     }
 }
 
-/// A payload that is one message, followed by a seal or not, as `inbound` requires.
+/// A payload that is one message, followed by a seal or not, as `inbound` requires; the
+/// seal is checked before anything is decoded.
 fn decode_checked<T: DeserializeOwned>(
     payload: &[u8],
     inbound: &mut Inbound,
 ) -> Result<T, FrameError> {
-    let (message, rest) =
-        postcard::take_from_bytes::<T>(payload).map_err(|_| FrameError::Malformed)?;
-    let body = &payload[..payload.len() - rest.len()];
-    let seal = match rest.len() {
-        0 => None,
-        SEAL_LEN => Seal::from_bytes(rest),
-        _ => return Err(FrameError::Malformed),
-    };
-    inbound.check(body, seal.as_ref())?;
-    Ok(message)
+    match inbound.accept(payload)? {
+        Accepted::Sealed(message) => decode_plain(message),
+        Accepted::Plain(message) => match postcard::take_from_bytes::<T>(message) {
+            Ok((message, [])) => Ok(message),
+            // A seal that did not verify, on a receiver that still takes plain frames.
+            _ if inbound.has_key() && message.len() > SEAL_LEN => Err(FrameError::BadSeal),
+            // What a sealed frame looks like to a receiver with no session key.
+            Ok((_, rest)) if rest.len() == SEAL_LEN && !inbound.has_key() => {
+                Err(FrameError::UnexpectedSeal)
+            }
+            _ => Err(FrameError::Malformed),
+        },
+    }
 }

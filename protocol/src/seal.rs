@@ -8,7 +8,9 @@
 //!
 //! A receiver drops a frame whose tag does not verify or whose counter is not above the last
 //! one it accepted: a forged or altered frame, a replay within the session, or a frame of
-//! another session (another key) never reaches the dispatcher. Frames are authenticated, not
+//! another session (another key) never reaches the dispatcher, nor even the message
+//! decoder: the seal is the payload's last [`SEAL_LEN`] bytes and is verified before the
+//! message is parsed ([`Inbound::accept`]). Frames are authenticated, not
 //! encrypted: whoever shares the network can read them.
 
 use hmac::{Hmac, KeyInit, Mac};
@@ -168,24 +170,56 @@ impl Inbound {
         self.sealed_only = sealed_only;
     }
 
+    /// Whether a session key is installed.
+    pub fn has_key(&self) -> bool {
+        self.opener.is_some()
+    }
+
     /// Whether only sealed frames are accepted now.
     pub fn is_sealed(&self) -> bool {
         self.sealed_only
     }
 
-    /// Accepts or refuses a frame whose message encodes to `message`, followed by `seal`.
-    pub fn check(&mut self, message: &[u8], seal: Option<&Seal>) -> Result<(), FrameError> {
-        match (seal, self.opener.as_mut()) {
-            (None, _) if self.sealed_only => Err(FrameError::Unsealed),
-            (None, _) => Ok(()),
-            (Some(_), None) => Err(FrameError::UnexpectedSeal),
-            (Some(seal), Some(opener)) => {
-                opener.open(message, seal)?;
+    /// Accepts or refuses a frame's `payload` before any of it is decoded, and returns the
+    /// message bytes to decode.
+    ///
+    /// With a session key, the last [`SEAL_LEN`] bytes are taken for a seal and verified
+    /// over the bytes before them first: on a sealed session nothing the key did not
+    /// authenticate reaches the message decoder. A receiver that still accepts plain frames
+    /// (a client just after authenticating) takes a payload whose seal does not verify as
+    /// a plain message ([`Accepted::Plain`]). Without a session key every payload is plain.
+    pub fn accept<'a>(&mut self, payload: &'a [u8]) -> Result<Accepted<'a>, FrameError> {
+        let Some(opener) = self.opener.as_mut() else {
+            return Ok(Accepted::Plain(payload));
+        };
+        let Some(split) = payload.len().checked_sub(SEAL_LEN).filter(|&at| at > 0) else {
+            return if self.sealed_only {
+                Err(FrameError::Unsealed)
+            } else {
+                Ok(Accepted::Plain(payload))
+            };
+        };
+        let (message, seal) = payload.split_at(split);
+        let seal = Seal::from_bytes(seal).ok_or(FrameError::BadSeal)?;
+        match opener.open(message, &seal) {
+            Ok(()) => {
                 self.sealed_only = true;
-                Ok(())
+                Ok(Accepted::Sealed(message))
             }
+            Err(FrameError::BadSeal) if !self.sealed_only => Ok(Accepted::Plain(payload)),
+            Err(error) => Err(error),
         }
     }
+}
+
+/// A frame's message bytes, once [`Inbound::accept`] let the frame through.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Accepted<'a> {
+    /// The message before a seal that verified.
+    Sealed(&'a [u8]),
+    /// A payload with no seal to verify: one message, or a sealed frame of no session this
+    /// receiver knows (which then does not decode as one message).
+    Plain(&'a [u8]),
 }
 
 fn tag(key: &SessionKey, direction: Direction, counter: u64, message: &[u8]) -> Hmac<Sha256> {

@@ -189,3 +189,96 @@ fn the_largest_message_still_fits_a_frame_when_sealed() {
     decoder.feed_checked::<PeerMessage>(&out[..len], &mut inbound, |m| got.push(m));
     assert_eq!(got, vec![Ok(largest)]);
 }
+
+/// A message type that counts how often the decoder tried to read one.
+mod probe {
+    use std::cell::Cell;
+
+    use serde::de::{Deserialize, Deserializer};
+
+    thread_local! {
+        pub static DECODED: Cell<u32> = const { Cell::new(0) };
+    }
+
+    /// Decodes as whatever `Request` decodes as, counting each attempt.
+    #[derive(Debug, PartialEq)]
+    pub struct Probe(pub super::Request);
+
+    impl<'de> Deserialize<'de> for Probe {
+        fn deserialize<D: Deserializer<'de>>(deserializer: D) -> Result<Self, D::Error> {
+            DECODED.with(|count| count.set(count.get() + 1));
+            super::Request::deserialize(deserializer).map(Probe)
+        }
+    }
+
+    pub fn decoded() -> u32 {
+        DECODED.with(Cell::get)
+    }
+}
+
+#[test]
+fn a_frame_with_a_bad_seal_is_refused_before_any_decoding() {
+    use probe::{Probe, decoded};
+
+    let decode = |bytes: &[u8], inbound: &mut Inbound| {
+        let mut decoder = FrameDecoder::new();
+        let mut out = Vec::new();
+        decoder.feed_checked::<Probe>(bytes, inbound, |frame| out.push(frame));
+        out
+    };
+    let mut inbound = controller_inbound(&KEY, &PEER_NONCE, &CLIENT_NONCE);
+    // Sealed for another session, and altered after sealing: neither is decoded.
+    let mut elsewhere = client_sealer(&KEY, &PEER_NONCE, &[9; 16]);
+    let foreign = sealed(&status_request(1), &mut elsewhere);
+    assert_eq!(
+        decode(&foreign, &mut inbound),
+        vec![Err(FrameError::BadSeal)]
+    );
+    let mut sealer = client_sealer(&KEY, &PEER_NONCE, &CLIENT_NONCE);
+    let mut payload = postcard::to_allocvec(&status_request(2)).unwrap();
+    let seal = sealer.seal(&payload);
+    payload[0] ^= 0x40;
+    payload.extend_from_slice(&seal.to_bytes());
+    let altered = framed(&payload);
+    assert_eq!(
+        decode(&altered, &mut inbound),
+        vec![Err(FrameError::BadSeal)]
+    );
+    // A plain frame long enough to pass for a sealed one, and garbage.
+    let long = plain(&Request {
+        id: RequestId(3),
+        command: Command::MoveTo {
+            targets: (0..8)
+                .map(|axis| AxisValue {
+                    axis,
+                    steps: i32::MAX,
+                })
+                .collect(),
+        },
+    });
+    assert_eq!(decode(&long, &mut inbound), vec![Err(FrameError::BadSeal)]);
+    assert_eq!(
+        decode(&framed(&[0xFF; 40]), &mut inbound),
+        vec![Err(FrameError::BadSeal)]
+    );
+    assert_eq!(decoded(), 0, "nothing reached the message decoder");
+    // The session's own frame is decoded, once.
+    let good = sealed(&status_request(4), &mut sealer);
+    assert_eq!(
+        decode(&good, &mut inbound),
+        vec![Ok(Probe(status_request(4)))]
+    );
+    assert_eq!(decoded(), 1);
+}
+
+/// `payload` with its CRC, stuffed and delimited, as a sender frames it.
+fn framed(payload: &[u8]) -> Vec<u8> {
+    let mut raw = payload.to_vec();
+    let crc = crc::Crc::<u32>::new(&crc::CRC_32_ISCSI).checksum(payload);
+    raw.extend_from_slice(&crc.to_le_bytes());
+    let mut out = vec![0u8; cobs::max_encoding_length(raw.len()) + 1];
+    let len = cobs::encode(&raw, &mut out);
+    out.truncate(len);
+    out.push(0);
+    out
+}

@@ -20,7 +20,7 @@
 //! registers name both marks' axes.
 //!
 //! Layout: slot 0 in the sector at [`STORAGE_OFFSET`], slot 1 in the next one (the
-//! `STORAGE` region of `memory.x`, which the program is never linked into).
+//! `STORAGE` region of the chip's memory map, which the program is never linked into).
 
 use embassy_rp::flash::{Blocking, ERASE_SIZE, Flash, PAGE_SIZE};
 use embassy_rp::peripherals::FLASH;
@@ -32,18 +32,17 @@ use portable_atomic::{AtomicU32, Ordering};
 use super::events::LAST_EVENT_US;
 use super::log::{info, warn};
 use super::scratch;
+use super::this::FLASH_SIZE;
 use super::{SharedCore, now_us};
 use crate::mark::{self, MARK_LEN};
 use crate::record::RECORD_LEN;
 use crate::storage::{Storage, StorageError};
 
-/// The Pico W's flash: 2 MiB.
-pub const FLASH_SIZE: usize = 2 * 1024 * 1024;
-/// Where the two slots start (an offset into flash, as `memory.x`'s `STORAGE`).
-pub const STORAGE_OFFSET: u32 = 0x1F_E000;
 const SLOTS: u8 = 2;
+/// Where the two slots start: the last sectors of the board's flash (an offset into
+/// flash, as the `STORAGE` region of the chip's memory map).
+pub const STORAGE_OFFSET: u32 = (FLASH_SIZE - SLOTS as usize * ERASE_SIZE) as u32;
 
-const _: () = assert!(STORAGE_OFFSET as usize + SLOTS as usize * ERASE_SIZE == FLASH_SIZE);
 const _: () = assert!(RECORD_LEN <= ERASE_SIZE && RECORD_LEN.is_multiple_of(PAGE_SIZE));
 
 pub type BoardFlash = Flash<'static, FLASH, Blocking, FLASH_SIZE>;

@@ -1,8 +1,10 @@
-//! The RP2040 layer: executes what the firmware core decides, on real pins and links.
+//! The board layer: executes what the firmware core decides, on real pins and links, on
+//! a Raspberry Pi chip (feature `rp2040` or `rp235x`).
 //!
-//! Two images share it. The Pico W image (feature `board`) serves the protocol over TCP on
-//! Wi-Fi and over USB CDC-ACM, times steps with PIO state machines and keeps the record in
-//! flash. The emulator image (feature `emu`) serves it over UART0 and times steps with the
+//! Three images share it. The board image ([`image`], features `pico-w` and `pico2-w`, one
+//! module per board: [`pico_w`], [`pico2_w`]) serves the protocol over TCP on Wi-Fi and
+//! over USB CDC-ACM, times steps with PIO state machines and keeps the record in flash.
+//! The emulator image (feature `emu`, RP2040) serves it over UART0 and times steps with the
 //! hardware timer, for rp2040js, which has neither the Wi-Fi chip nor a cycle-timed PIO.
 //!
 //! How the pieces fit:
@@ -14,6 +16,13 @@
 //! - [`link`] serves the protocol on any byte stream (TCP, USB, UART), one session each.
 //! - [`watchdog`] resets the board when a main loop stops making progress.
 
+#[cfg(all(feature = "rp2040", feature = "rp235x"))]
+compile_error!("features `rp2040` and `rp235x` exclude each other: choose one chip");
+#[cfg(all(feature = "pico-w", feature = "pico2-w"))]
+compile_error!("features `pico-w` and `pico2-w` exclude each other: choose one board");
+#[cfg(all(feature = "board", not(any(feature = "pico-w", feature = "pico2-w"))))]
+compile_error!("feature `board` needs a board: enable `pico-w` or `pico2-w` instead");
+
 pub mod events;
 pub mod link;
 mod log;
@@ -24,7 +33,13 @@ pub mod watchdog;
 #[cfg(feature = "board")]
 pub mod flash;
 #[cfg(feature = "board")]
+pub mod image;
+#[cfg(feature = "board")]
 pub mod led;
+#[cfg(feature = "pico2-w")]
+pub mod pico2_w;
+#[cfg(feature = "pico-w")]
+pub mod pico_w;
 #[cfg(feature = "board")]
 pub mod pio_steps;
 #[cfg(feature = "board")]
@@ -38,6 +53,12 @@ pub mod wifi;
 
 #[cfg(feature = "emu")]
 pub mod timer_steps;
+
+#[cfg(feature = "pico-w")]
+pub use pico_w as this;
+/// The board this image is built for.
+#[cfg(feature = "pico2-w")]
+pub use pico2_w as this;
 #[cfg(feature = "emu")]
 pub mod uart;
 

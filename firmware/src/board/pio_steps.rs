@@ -30,10 +30,9 @@
 use embassy_futures::select::{Either, select};
 use embassy_rp::clocks::clk_sys_freq;
 use embassy_rp::gpio::Level;
-use embassy_rp::peripherals::PIO1;
 use embassy_rp::pio::program::pio_asm;
 use embassy_rp::pio::{
-    Common, Config, Direction, FifoJoin, LoadedProgram, Pin, ShiftConfig, ShiftDirection,
+    Common, Config, Direction, FifoJoin, Instance, LoadedProgram, Pin, ShiftConfig, ShiftDirection,
     StateMachine,
 };
 use embassy_time::{Instant, Timer};
@@ -46,7 +45,7 @@ use super::now_us;
 
 /// Cycles a word costs beyond its delay field.
 const WORD_CYCLES: u32 = 4;
-/// The largest delay field (28 bits): 2.1 s at 125 MHz.
+/// The largest delay field (28 bits): 2.1 s at 125 MHz (RP2040), 1.8 s at 150 MHz (RP2350).
 const MAX_DELAY: u32 = (1 << 28) - 1;
 /// A timeline whose end is this close to now may be finishing: wait it out, then restart.
 const GUARD_US: u64 = 10;
@@ -58,13 +57,13 @@ const PAD_US: u64 = LOOKAHEAD_US / 2;
 /// Events that could not be played on time (should stay 0).
 pub static LATE: AtomicU32 = AtomicU32::new(0);
 
-/// The program, loaded once per PIO block.
-pub struct StepProgram<'d> {
-    program: LoadedProgram<'d, PIO1>,
+/// The program, loaded once into the board's step PIO block.
+pub struct StepProgram<'d, P: Instance> {
+    program: LoadedProgram<'d, P>,
 }
 
-impl<'d> StepProgram<'d> {
-    pub fn load(common: &mut Common<'d, PIO1>) -> Self {
+impl<'d, P: Instance> StepProgram<'d, P> {
+    pub fn load(common: &mut Common<'d, P>) -> Self {
         let source = pio_asm!(
             ".wrap_target",
             "    pull block",
@@ -81,8 +80,8 @@ impl<'d> StepProgram<'d> {
 }
 
 /// Plays one axis's queue on its state machine.
-pub struct Feeder<'d, const SM: usize> {
-    sm: StateMachine<'d, PIO1, SM>,
+pub struct Feeder<'d, P: Instance, const SM: usize> {
+    sm: StateMachine<'d, P, SM>,
     queue: &'static Queue,
     cycles_per_us: u32,
     /// When the last word scheduled changes the pins (µs since boot).
@@ -96,12 +95,12 @@ pub struct Feeder<'d, const SM: usize> {
     next_pad_us: u64,
 }
 
-impl<'d, const SM: usize> Feeder<'d, SM> {
+impl<'d, P: Instance, const SM: usize> Feeder<'d, P, SM> {
     /// Sets up the state machine on `pins` (four consecutive GPIOs, bit 0 first), all low.
     pub fn new(
-        mut sm: StateMachine<'d, PIO1, SM>,
-        program: &StepProgram<'d>,
-        pins: [Pin<'d, PIO1>; 4],
+        mut sm: StateMachine<'d, P, SM>,
+        program: &StepProgram<'d, P>,
+        pins: [Pin<'d, P>; 4],
         queue: &'static Queue,
     ) -> Self {
         let pins = [&pins[0], &pins[1], &pins[2], &pins[3]];

@@ -10,7 +10,7 @@
 //! embedded from the file `build.rs` found (`OPTALIGN_CYW43_NVRAM`).
 
 use cyw43::{A4, Aligned, Control, JoinOptions, PowerManagementMode};
-use cyw43_pio::{DEFAULT_CLOCK_DIVIDER, PioSpi};
+use cyw43_pio::PioSpi;
 use defmt::unwrap;
 use embassy_executor::Spawner;
 use embassy_futures::select::{Either, select};
@@ -24,7 +24,7 @@ use static_cell::StaticCell;
 
 use super::log::{info, warn};
 use super::rng::Nonces;
-use super::{SharedCore, led, tcp};
+use super::{SharedCore, led, tcp, this};
 use crate::record::WifiCredentials;
 use crate::session::RngSource;
 
@@ -32,7 +32,7 @@ use crate::session::RngSource;
 static FIRMWARE: &Aligned<A4, [u8]> = &Aligned(*cyw43_firmware::CYW43_43439A0);
 /// CYW43439 country locale matrix.
 static CLM: &[u8] = cyw43_firmware::CYW43_43439A0_CLM;
-/// Pico W board nvram (radio parameters).
+/// Board nvram (radio parameters; the Pico 2 W uses the Pico W's).
 static NVRAM: &Aligned<A4, [u8]> = &Aligned(*include_bytes!(env!("OPTALIGN_CYW43_NVRAM_PATH")));
 
 /// How long a DHCP lease may take after joining.
@@ -44,7 +44,7 @@ const CREDENTIALS_POLL: Duration = Duration::from_secs(1);
 /// Sockets: DHCP plus the TCP sessions.
 const SOCKETS: usize = 1 + tcp::SESSIONS;
 
-/// The Pico W's fixed wiring of the CYW43439.
+/// The fixed wiring of the CYW43439 (the same on the Pico W and the Pico 2 W).
 pub struct Radio {
     pub power: Peri<'static, PIN_23>,
     pub data: Peri<'static, PIN_24>,
@@ -88,7 +88,7 @@ where
     let spi = PioSpi::new(
         &mut pio.common,
         pio.sm0,
-        DEFAULT_CLOCK_DIVIDER,
+        this::RADIO_CLOCK_DIVIDER,
         pio.irq0,
         select,
         radio.data,

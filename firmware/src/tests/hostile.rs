@@ -364,6 +364,7 @@ fn record() -> impl Strategy<Value = Record> {
             key,
             wifi: None,
             axes: axes.into_iter().collect(),
+            boots: 0,
         })
 }
 

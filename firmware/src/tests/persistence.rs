@@ -315,3 +315,63 @@ fn a_garbled_mark_flags_every_axis() {
             .all(|a| a.faults.has(Faults::POSITION_LOST))
     );
 }
+
+/// Entropy that repeats itself exactly: every boot, every draw.
+struct Stuck;
+
+impl crate::RngSource for Stuck {
+    fn fill(&mut self, buf: &mut [u8]) {
+        buf.fill(0xA5);
+    }
+}
+
+#[test]
+fn challenges_differ_across_boots_when_the_entropy_repeats() {
+    use super::dispatch::{KEY, network};
+    use optalign_protocol::{Command, Reply, RequestId};
+
+    let challenge = |rig: &mut Rig| {
+        let mut net = network(rig);
+        match rig.send_drawing(&mut net, RequestId(2), Command::AuthChallenge, &mut Stuck) {
+            Reply::Challenge { nonce } => nonce,
+            other => panic!("no challenge: {other:?}"),
+        }
+    };
+    let mut rig = Rig::boot(RamStorage::new(), [MountModel::new(0)], 1);
+    rig.ok(Command::SetKey { key: KEY });
+    let mut seen = vec![challenge(&mut rig), challenge(&mut rig)];
+    for _ in 0..3 {
+        // A reset before anything else is written: only the boot counter moved on.
+        rig = reboot(&rig);
+        seen.push(challenge(&mut rig));
+        seen.push(challenge(&mut rig));
+    }
+    let mut distinct = seen.clone();
+    distinct.sort();
+    distinct.dedup();
+    assert_eq!(distinct.len(), seen.len(), "a challenge repeated: {seen:?}");
+    // Each boot's number is in its nonces: 1, 1, 2, 2, 3, 3, 4, 4.
+    let boots: Vec<u32> = seen
+        .iter()
+        .map(|nonce| u32::from_le_bytes(nonce[..4].try_into().unwrap()))
+        .collect();
+    assert_eq!(boots, [1, 1, 2, 2, 3, 3, 4, 4]);
+}
+
+#[test]
+fn no_challenge_is_issued_until_the_boot_counter_is_stored() {
+    use super::dispatch::{KEY, code, network};
+    use optalign_protocol::{Command, ErrorCode, Reply, RequestId};
+
+    let mut rig = Rig::boot(RamStorage::new(), [MountModel::new(0)], 1);
+    rig.ok(Command::SetKey { key: KEY });
+    let mut storage = rig.controller.storage().power_cycled();
+    storage.set_failing(true);
+    let mut rig = Rig::boot(storage, [MountModel::new(0)], 1);
+    let mut net = network(&mut rig);
+    let reply = rig.send_on(&mut net, RequestId(2), Command::AuthChallenge);
+    assert_eq!(code(&reply), Some(ErrorCode::STORAGE), "{reply:?}");
+    rig.controller.storage_mut().set_failing(false);
+    let reply = rig.send_on(&mut net, RequestId(3), Command::AuthChallenge);
+    assert!(matches!(reply, Reply::Challenge { .. }), "{reply:?}");
+}

@@ -6,7 +6,9 @@ use optalign_protocol::{
 };
 
 use crate::sim::{MountModel, SimDriver, SimRng};
-use crate::{BoardInfo, Controller, LinkKind, RamStorage, Session, StepDirection, StepDriver};
+use crate::{
+    BoardInfo, Controller, LinkKind, RamStorage, RngSource, Session, StepDirection, StepDriver,
+};
 
 pub const CAPABILITIES: u32 = Capabilities::UNIPOLAR_HALF_STEP
     | Capabilities::STEP_DIR
@@ -112,12 +114,24 @@ impl Rig {
 
     /// Sends `command` under `id` on `session` and returns the reply.
     pub fn send_on(&mut self, session: &mut Session, id: RequestId, command: Command) -> Reply {
+        let mut rng = self.rng.clone();
+        let reply = self.send_drawing(session, id, command, &mut rng);
+        self.rng = rng;
+        reply
+    }
+
+    /// [`Self::send_on`], the controller drawing its randomness from `rng`.
+    pub fn send_drawing(
+        &mut self,
+        session: &mut Session,
+        id: RequestId,
+        command: Command,
+        rng: &mut dyn RngSource,
+    ) -> Reply {
         let mut replies = Vec::new();
         let request = Request { id, command };
         self.controller
-            .handle(session, &request, self.now, &mut self.rng, &mut |m| {
-                replies.push(m)
-            });
+            .handle(session, &request, self.now, rng, &mut |m| replies.push(m));
         assert_eq!(replies.len(), 1, "one reply per request");
         match replies.pop() {
             Some(PeerMessage::Reply { id: got, reply }) => {
