@@ -112,11 +112,14 @@ pub struct ScenarioFile {
 }
 
 impl ScenarioFile {
-    /// Reads and validates a scenario file; errors name the file, the field and the reason.
+    /// Reads and validates a scenario file, photo paths taken from its folder; errors name
+    /// the file, the field and the reason.
     pub fn load(path: &Path) -> anyhow::Result<Self> {
         let text = std::fs::read_to_string(path)
             .with_context(|| format!("cannot read scenario {}", path.display()))?;
-        Self::parse(&text).with_context(|| format!("invalid scenario {}", path.display()))
+        let folder = path.parent().unwrap_or(Path::new("."));
+        Self::parse_in(&text, folder)
+            .with_context(|| format!("invalid scenario {}", path.display()))
     }
 
     /// Loads `path`, or the defaults when none is given.
@@ -124,9 +127,18 @@ impl ScenarioFile {
         path.map_or_else(|| Ok(Self::default()), Self::load)
     }
 
+    /// Parses and validates a scenario, photo paths taken from the working folder.
     pub fn parse(text: &str) -> anyhow::Result<Self> {
-        let scenario: Self =
+        Self::parse_in(text, Path::new(""))
+    }
+
+    /// Parses a scenario, takes relative photo paths from `folder`, and validates it.
+    fn parse_in(text: &str, folder: &Path) -> anyhow::Result<Self> {
+        let mut scenario: Self =
             toml::from_str(text).map_err(|e| anyhow::anyhow!("{}", e.to_string().trim()))?;
+        scenario.michelson.realism.resolve_paths(folder);
+        scenario.cavity.realism.resolve_paths(folder);
+        scenario.relay.realism.resolve_paths(folder);
         scenario.validate()?;
         Ok(scenario)
     }
@@ -236,5 +248,65 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(error.contains("timing.camera_move_s"), "{error}");
+    }
+
+    /// A shipped scenario file, by its name in docs/scenarios.
+    fn shipped(name: &str) -> std::path::PathBuf {
+        Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../docs/scenarios")
+            .join(name)
+    }
+
+    #[test]
+    fn photo_scenarios_load_their_photos_from_the_files_folder_and_render_16_bit() {
+        // The tests run in host/: the photos' relative paths only resolve from the file's
+        // own folder.
+        let michelson = ScenarioFile::load(&shipped("photos-michelson.toml")).unwrap();
+        let scene = optalign_optics::Michelson::new(michelson.michelson.clone(), [300, -200, 0, 0])
+            .unwrap();
+        let frame = scene.render(&[0; 4], 0);
+        assert_eq!(frame.full_scale(), u16::MAX);
+        assert_eq!((frame.width(), frame.height()), (1280, 960));
+        let cavity = ScenarioFile::load(&shipped("photos-cavity.toml")).unwrap();
+        let scene = optalign_optics::Cavity::new(cavity.cavity.clone(), [0; 2]).unwrap();
+        // The background photograph's ambient light (about 50 gray levels) stays put.
+        let frame = scene.render(&[0; 2], 0);
+        let corner = f64::from(frame.pixel(20, 20)) * f64::from(frame.levels_per_count());
+        assert!((35.0..70.0).contains(&corner), "{corner}");
+    }
+
+    #[test]
+    fn bad_photo_paths_crops_and_files_are_named() {
+        let dir = tempfile::tempdir().unwrap();
+        let write = |text: &str| {
+            let path = dir.path().join("s.toml");
+            std::fs::write(&path, text).unwrap();
+            ScenarioFile::load(&path).unwrap_err()
+        };
+        let missing = write(
+            "[michelson.realism]\nbeam_profile = { kind = \"image\", path = \"nowhere.png\" }\n",
+        );
+        let text = format!("{missing:#}");
+        assert!(
+            text.contains("michelson.realism.beam_profile.path") && text.contains("nowhere.png"),
+            "{text}"
+        );
+        std::fs::write(dir.path().join("junk.png"), b"not an image").unwrap();
+        let junk = write("[cavity.realism]\nbackground_photo = { path = \"junk.png\" }\n");
+        let text = format!("{junk:#}");
+        assert!(
+            text.contains("cavity.realism.background_photo") && text.contains("not a usable image"),
+            "{text}"
+        );
+        let photo = shipped("photos/k-500mm.png");
+        let outside = write(&format!(
+            "[relay.realism]\nbeam_profile = {{ kind = \"image\", path = {photo:?}, crop = [1200, 0, 200, 10] }}\n"
+        ));
+        let text = format!("{outside:#}");
+        assert!(text.contains("does not lie inside"), "{text}");
+        let erase = write(&format!(
+            "[michelson.realism]\nbackground_photo = {{ path = {photo:?}, erase = [[0, 0, 0, 5]] }}\n"
+        ));
+        assert!(format!("{erase:#}").contains("does not lie inside"));
     }
 }

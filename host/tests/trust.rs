@@ -347,7 +347,7 @@ async fn a_move_whose_controller_restarted_before_answering_runs_once_and_is_unk
     assert!(
         error
             .to_string()
-            .contains("is unknown: the controller restarted"),
+            .contains(": the controller restarted while it was under way"),
         "{error}"
     );
     assert_ne!(
@@ -392,6 +392,36 @@ async fn relayed_client(relay: &Relay, request_timeout: Option<Duration>) -> Cli
         ..defaults
     };
     Client::connect(relay.endpoint(), options).await.unwrap()
+}
+
+#[tokio::test]
+async fn a_move_whose_controller_went_silent_is_reported_as_possibly_run() {
+    let (first, address) = peer(TimeMode::Instant, None).await;
+    let relay = Relay::start(address).await;
+    let client = relayed_client(&relay, Some(Duration::from_millis(100))).await;
+    // The move reaches the controller, and nothing comes back (the controller died).
+    relay.hold.store(true, Ordering::SeqCst);
+    let id = client.next_request_id();
+    let command = Command::MoveBy {
+        deltas: [AxisValue { axis: 0, steps: 300 }].into_iter().collect(),
+    };
+    let error = client.run_move_with_id(id, command).await.unwrap_err();
+    assert!(
+        matches!(
+            error,
+            ClientError::OutcomeUnknown {
+                request: "MoveBy",
+                why: Unknown::Unanswered,
+                ..
+            }
+        ),
+        "{error}"
+    );
+    let text = error.to_string();
+    assert!(text.starts_with("outcome unknown: MoveBy"), "{text}");
+    assert!(text.contains(&format!("{:#010x}", id.0)), "{text}");
+    assert!(text.contains("it may have run"), "{text}");
+    assert_eq!(first.shaft_positions()[0], 300, "it did run");
 }
 
 #[tokio::test]

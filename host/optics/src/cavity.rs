@@ -76,7 +76,11 @@ impl Cavity {
             params.width_px as usize,
             params.height_px as usize,
             key,
-        );
+        )
+        .map_err(|reason| ScenarioError::Invalid {
+            field: "cavity.realism.background_photo".into(),
+            reason,
+        })?;
         Ok(Self {
             params,
             offsets,
@@ -170,7 +174,8 @@ impl Cavity {
             secondary.add_intensity_row(y, peak, &mut scratch, row);
             true
         });
-        Frame::new(p.width_px, p.height_px, pixels).expect("buffer sized to the frame")
+        Frame::deep(p.width_px, p.height_px, pixels, readout.full_scale())
+            .expect("buffer sized to the frame")
     }
 }
 

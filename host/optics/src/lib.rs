@@ -16,6 +16,7 @@ mod cavity;
 mod frame;
 mod math;
 mod michelson;
+mod photo;
 mod profile;
 mod readout;
 mod relay;

@@ -66,7 +66,11 @@ impl Michelson {
             params.width_px as usize,
             params.height_px as usize,
             key,
-        );
+        )
+        .map_err(|reason| ScenarioError::Invalid {
+            field: "michelson.realism.background_photo".into(),
+            reason,
+        })?;
         Ok(Self {
             params,
             offsets,
@@ -213,7 +217,8 @@ impl Michelson {
             }
             true
         });
-        Frame::new(p.width_px, p.height_px, pixels).expect("buffer sized to the frame")
+        Frame::deep(p.width_px, p.height_px, pixels, readout.full_scale())
+            .expect("buffer sized to the frame")
     }
 }
 

@@ -12,6 +12,7 @@ use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex, OnceLock};
 
 use crate::math::{SPOT_EXTENT, spot_span};
+use crate::photo::Photo;
 use crate::scenario::{BeamProfile, Texture};
 use crate::speckle::SpeckleTile;
 
@@ -298,7 +299,7 @@ impl ProfileField {
             },
             BeamProfile::Donut => Self::Donut,
             BeamProfile::TopHat { order } => Self::TopHat { order: *order },
-            BeamProfile::Image { path } => Self::Image(load_profile_image(path)?),
+            BeamProfile::Image { path, crop } => Self::Image(load_profile_image(path, *crop)?),
         })
     }
 
@@ -474,31 +475,36 @@ impl ProfileImage {
     }
 }
 
-/// Decodes a beam photograph (8- or 16-bit grayscale, or colour converted to gray), once
-/// per path and process.
-pub(crate) fn load_profile_image(path: &Path) -> Result<Arc<ProfileImage>, String> {
-    static CACHE: OnceLock<Mutex<HashMap<PathBuf, Arc<ProfileImage>>>> = OnceLock::new();
+/// A beam photograph (8- or 16-bit grayscale, or colour converted to gray), or the part
+/// `crop` (`[x, y, width, height]`, px) of it that holds the beam, once per path, part and
+/// process.
+pub(crate) fn load_profile_image(
+    path: &Path,
+    crop: Option<[u32; 4]>,
+) -> Result<Arc<ProfileImage>, String> {
+    type Key = (PathBuf, Option<[u32; 4]>);
+    static CACHE: OnceLock<Mutex<HashMap<Key, Arc<ProfileImage>>>> = OnceLock::new();
     let cache = CACHE.get_or_init(Default::default);
-    if let Some(image) = cache.lock().unwrap_or_else(|e| e.into_inner()).get(path) {
+    let key = (path.to_owned(), crop);
+    if let Some(image) = cache.lock().unwrap_or_else(|e| e.into_inner()).get(&key) {
         return Ok(image.clone());
     }
-    let decoded = image::ImageReader::open(path)
-        .map_err(|e| format!("cannot open beam photo {}: {e}", path.display()))?
-        .with_guessed_format()
-        .map_err(|e| format!("cannot read beam photo {}: {e}", path.display()))?
-        .decode()
-        .map_err(|e| format!("cannot decode beam photo {}: {e}", path.display()))?
-        .into_luma16();
-    let (width, height) = (decoded.width() as usize, decoded.height() as usize);
-    let raw: Vec<f64> = decoded.into_raw().into_iter().map(f64::from).collect();
+    let photo = Photo::load(path)?;
+    let part = match crop {
+        Some(area) => photo
+            .cropped(area)
+            .map_err(|e| format!("beam photo {}: crop {e}", path.display()))?,
+        None => (*photo).clone(),
+    };
+    let raw: Vec<f64> = part.levels.iter().map(|&v| f64::from(v)).collect();
     let image = Arc::new(
-        ProfileImage::from_intensities(width, height, &raw)
+        ProfileImage::from_intensities(part.width, part.height, &raw)
             .map_err(|e| format!("beam photo {}: {e}", path.display()))?,
     );
     cache
         .lock()
         .unwrap_or_else(|e| e.into_inner())
-        .insert(path.to_owned(), image.clone());
+        .insert(key, image.clone());
     Ok(image)
 }
 

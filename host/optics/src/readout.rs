@@ -1,5 +1,6 @@
-//! Camera read-out shared by the scenes: turns a row of light intensity (gray levels) into
-//! 8-bit pixels by adding the background level and per-pixel noise, then saturating.
+//! Camera read-out shared by the scenes: turns a row of light intensity (gray levels of an
+//! 8-bit frame) into pixels at the camera's depth by adding the background level and
+//! per-pixel noise, then saturating.
 //!
 //! Noise comes from one shared table of 4M approximately Gaussian samples (each the sum of
 //! four bytes of a splitmix64 hash, so close to Gaussian with tails cut at 3.4 sigma), built
@@ -21,7 +22,7 @@ const GAMMA: u64 = 0x9e37_79b9_7f4a_7c15;
 const TABLE_LEN: usize = 1 << 22;
 /// Table entries per standard deviation of noise.
 const TABLE_STEPS_PER_STD: f64 = 16.0;
-/// Adding this to a float in [0, 256) leaves its nearest integer in the low mantissa bits.
+/// Adding this to a float in [0, 65536) leaves its nearest integer in the low mantissa bits.
 const ROUNDING_MAGIC: f32 = 8_388_608.0;
 
 /// The splitmix64 output function: a bijective 64-bit mixer.
@@ -66,35 +67,50 @@ pub(crate) struct Readout {
     table: &'static [i8],
     /// Where this frame starts reading the table.
     start: usize,
-    /// Gray levels per table unit.
+    /// Counts per table unit.
     scale: f32,
+    /// Dark level, counts.
     background: f32,
+    /// Saturation, counts.
     saturation: f32,
+    /// Counts per gray level of an 8-bit frame.
+    gain: f32,
+    /// Largest pixel value.
+    full_scale: u16,
 }
 
 impl Readout {
     pub(crate) fn new(noise: &NoiseParams, scene_key: u64, frame_index: u64) -> Self {
         let key = mix64(scene_key ^ mix64(frame_index.wrapping_add(GAMMA)));
+        let full_scale = noise.full_scale();
+        let gain = f32::from(full_scale) / 255.0;
         Self {
             table: noise_table(),
             start: (key % TABLE_LEN as u64) as usize,
-            scale: (noise.std / TABLE_STEPS_PER_STD) as f32,
-            background: noise.background_level as f32,
-            saturation: noise.saturation_level as f32,
+            scale: (noise.std / TABLE_STEPS_PER_STD) as f32 * gain,
+            background: noise.background_level as f32 * gain,
+            saturation: noise.saturation_level as f32 * gain,
+            gain,
+            full_scale,
         }
     }
 
-    /// Writes row `y`: background + `signal` (zero where `None`) + noise, saturated.
-    /// `signal`, when given, has one entry per pixel of `out`.
-    pub(crate) fn finish_row(&self, y: u32, signal: Option<&[f32]>, out: &mut [u8]) {
+    /// Largest pixel value of the frames read out.
+    pub(crate) fn full_scale(&self) -> u16 {
+        self.full_scale
+    }
+
+    /// Writes row `y`: background + `signal` (gray levels, zero where `None`) + noise,
+    /// saturated, in counts. `signal`, when given, has one entry per pixel of `out`.
+    pub(crate) fn finish_row(&self, y: u32, signal: Option<&[f32]>, out: &mut [u16]) {
         let w = out.len();
         let at = (self.start + y as usize * w) % TABLE_LEN;
         let noise = &self.table[at..at + w];
-        let (scale, bg, sat) = (self.scale, self.background, self.saturation);
+        let (scale, bg, sat, gain) = (self.scale, self.background, self.saturation, self.gain);
         match signal {
             Some(signal) => {
                 for ((o, &n), s) in out.iter_mut().zip(noise).zip(signal) {
-                    *o = quantise(bg + s + f32::from(n) * scale, sat);
+                    *o = quantise(bg + s * gain + f32::from(n) * scale, sat);
                 }
             }
             None => {
@@ -108,16 +124,16 @@ impl Readout {
 
 impl Readout {
     /// The pixel value of `signal` gray levels above the dark level, without noise.
-    pub(crate) fn level(&self, signal: f64) -> u8 {
-        quantise(self.background + signal as f32, self.saturation)
+    pub(crate) fn level(&self, signal: f64) -> u16 {
+        quantise(self.background + signal as f32 * self.gain, self.saturation)
     }
 }
 
-/// Rounds a gray level to the nearest pixel value, clipping at 0 and at `saturation` (<= 255).
-fn quantise(value: f32, saturation: f32) -> u8 {
+/// Rounds a value to the nearest count, clipping at 0 and at `saturation` (<= 65535).
+fn quantise(value: f32, saturation: f32) -> u16 {
     // Branch-free rounding that vectorises: the clipped value plus 2^23 holds its nearest
-    // integer in the low mantissa byte.
-    ((value.max(0.0).min(saturation) + ROUNDING_MAGIC).to_bits() & 0xff) as u8
+    // integer in the low mantissa bits.
+    ((value.max(0.0).min(saturation) + ROUNDING_MAGIC).to_bits() & 0xffff) as u16
 }
 
 #[cfg(test)]
@@ -133,6 +149,8 @@ mod tests {
         assert_eq!(quantise(254.7, 255.0), 255);
         assert_eq!(quantise(1000.0, 255.0), 255);
         assert_eq!(quantise(1000.0, 200.0), 200);
+        assert_eq!(quantise(65534.6, 65535.0), 65535);
+        assert_eq!(quantise(4000.4, 4095.0), 4000);
     }
 
     #[test]

@@ -1,6 +1,7 @@
 //! What the camera adds to a scene's light, shared by the three scenes: the per-frame
 //! random draws of the realism layers (laser power flicker, each beam's pointing jitter),
-//! stationary light that no motor moves (ambient, a sloping background, stray spots), a
+//! stationary light that no motor moves (ambient, a sloping background, stray spots, a
+//! photograph of a real camera's background), a
 //! read-out smear column under bright light, hot pixels, and then the read-out itself
 //! (dark level, noise, saturation). A scene hands over its light row by row.
 
@@ -8,6 +9,7 @@ use std::f64::consts::TAU;
 use std::ops::Range;
 
 use crate::math::{gaussian_profile, spot_span};
+use crate::photo::Photo;
 use crate::readout::{Readout, mix64};
 use crate::scenario::{RealismParams, StraySpot};
 
@@ -73,6 +75,8 @@ pub(crate) struct Sensor {
     /// Vertical slope per row, gray levels.
     row_slope: Vec<f32>,
     stray: Vec<PlacedSpot>,
+    /// A photographed background, gray levels, row-major.
+    photo: Option<Vec<f32>>,
     smear: f32,
     /// Hot pixels (index) and their level above the dark level.
     hot: Vec<usize>,
@@ -83,7 +87,24 @@ pub(crate) struct Sensor {
 
 impl Sensor {
     /// The sensor of a `width` x `height` camera with `realism`; `key` places hot pixels.
-    pub(crate) fn new(realism: &RealismParams, width: usize, height: usize, key: u64) -> Self {
+    /// An error says why the background photograph cannot be used.
+    pub(crate) fn new(
+        realism: &RealismParams,
+        width: usize,
+        height: usize,
+        key: u64,
+    ) -> Result<Self, String> {
+        let photo = match &realism.background_photo {
+            Some(spec) => {
+                let gain = spec.gain as f32;
+                let mut levels = Photo::load(&spec.path)?
+                    .erased(&spec.erase)?
+                    .resampled(width, height);
+                levels.iter_mut().for_each(|v| *v *= gain);
+                Some(levels)
+            }
+            None => None,
+        };
         let centre = [width as f64 / 2.0, height as f64 / 2.0];
         let [gx, gy] = realism.gradient_levels;
         let column_light = (0..width)
@@ -107,18 +128,23 @@ impl Sensor {
             draw += 1;
         }
         let hot = hot.into_iter().collect();
-        let dark = realism.ambient_level == 0.0 && gx == 0.0 && gy == 0.0 && stray.is_empty();
-        Self {
+        let dark = realism.ambient_level == 0.0
+            && gx == 0.0
+            && gy == 0.0
+            && stray.is_empty()
+            && photo.is_none();
+        Ok(Self {
             width,
             height,
             column_light,
             row_slope,
             stray,
+            photo,
             smear: realism.smear as f32,
             hot,
             hot_level: realism.hot_pixel_level,
             dark,
-        }
+        })
     }
 
     /// Reads out a frame: `light(y, row)` adds the scene's light of row `y` into the zeroed
@@ -127,9 +153,9 @@ impl Sensor {
         &self,
         readout: &Readout,
         mut light: impl FnMut(usize, &mut [f32]) -> bool,
-    ) -> Vec<u8> {
+    ) -> Vec<u16> {
         let (w, h) = (self.width, self.height);
-        let mut pixels = vec![0u8; w * h];
+        let mut pixels = vec![0u16; w * h];
         if self.smear > 0.0 {
             self.expose_with_smear(readout, &mut light, &mut pixels);
         } else {
@@ -159,7 +185,7 @@ impl Sensor {
         &self,
         readout: &Readout,
         light: &mut impl FnMut(usize, &mut [f32]) -> bool,
-        pixels: &mut [u8],
+        pixels: &mut [u16],
     ) {
         let (w, h) = (self.width, self.height);
         let mut frame = vec![0f32; w * h];
@@ -195,6 +221,12 @@ impl Sensor {
         let slope = self.row_slope[y];
         for (v, c) in row.iter_mut().zip(&self.column_light) {
             *v += c + slope;
+        }
+        if let Some(photo) = &self.photo {
+            let w = self.width;
+            for (v, p) in row.iter_mut().zip(&photo[y * w..(y + 1) * w]) {
+                *v += p;
+            }
         }
         for spot in &self.stray {
             if spot.rows.contains(&y) {
@@ -269,7 +301,7 @@ mod tests {
             ..RealismParams::default()
         };
         let (w, h) = (200usize, 100usize);
-        let sensor = Sensor::new(&realism, w, h, 3);
+        let sensor = Sensor::new(&realism, w, h, 3).unwrap();
         let pixels = sensor.expose(&Readout::new(&quiet(), 1, 0), |_, _| false);
         let at = |x: usize, y: usize| pixels[y * w + x];
         // Dark level 6 + ambient 20, +-10 across the frame.
@@ -286,7 +318,7 @@ mod tests {
             ..RealismParams::default()
         };
         let (w, h) = (100usize, 100usize);
-        let sensor = Sensor::new(&realism, w, h, 3);
+        let sensor = Sensor::new(&realism, w, h, 3).unwrap();
         // A bright 10-row bar in column 40 (light 1000 per pixel).
         let pixels = sensor.expose(&Readout::new(&quiet(), 1, 0), |y, row| {
             if (45..55).contains(&y) {

@@ -25,7 +25,7 @@ fn difference(a: &Frame, b: &Frame) -> Frame {
         .zip(b.pixels())
         .map(|(x, y)| x.saturating_sub(*y))
         .collect();
-    Frame::new(a.width(), a.height(), pixels).unwrap()
+    Frame::deep(a.width(), a.height(), pixels, a.full_scale()).unwrap()
 }
 
 #[test]

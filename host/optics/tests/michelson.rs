@@ -79,7 +79,7 @@ fn error_is_the_sum_of_both_beam_distances() {
 }
 
 /// Gray levels along the phase-gradient direction through `(cx, cy)`, offsets `-n..=n`.
-fn along_gradient(frame: &Frame, p: &MichelsonParams, cx: f64, cy: f64, n: i32) -> Vec<u8> {
+fn along_gradient(frame: &Frame, p: &MichelsonParams, cx: f64, cy: f64, n: i32) -> Vec<u16> {
     let a = p.fringe_angle_deg.to_radians();
     (-n..=n)
         .map(|t| {

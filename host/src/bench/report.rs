@@ -27,7 +27,7 @@ pub fn write_thumbnail(frame_png: &Path, out: &Path, width: u32) -> anyhow::Resu
     let width = width.min(frame.width()).max(1);
     let height =
         ((u64::from(frame.height()) * u64::from(width)) / u64::from(frame.width())).max(1) as u32;
-    let image = image::GrayImage::from_raw(frame.width(), frame.height(), frame.pixels().to_vec())
+    let image = image::GrayImage::from_raw(frame.width(), frame.height(), frame.to_8bit())
         .context("frame buffer size")?;
     let small = image::imageops::thumbnail(&image, width, height);
     let file = File::create(out).with_context(|| format!("cannot create {}", out.display()))?;

@@ -13,7 +13,7 @@ use super::picture::{Picture, median};
 /// Side of the cells, px, over which the darker of the two frames is chosen.
 const CELL: usize = 8;
 
-/// The raw levels a place shows without the beam.
+/// The levels a place shows without the beam, gray levels.
 #[derive(Clone, Debug)]
 pub struct Backdrop {
     width: usize,
@@ -29,9 +29,10 @@ impl Backdrop {
     /// them at most, apart from where its two faint tails overlap). `noise` is the larger
     /// read noise of the two. `None` when the frames differ in size.
     pub fn from_pair(a: &Frame, b: &Frame, noise: f64) -> Option<Self> {
-        if a.width() != b.width() || a.height() != b.height() {
+        if a.width() != b.width() || a.height() != b.height() || a.full_scale() != b.full_scale() {
             return None;
         }
+        let scale = a.levels_per_count();
         let (width, height) = (a.width() as usize, a.height() as usize);
         let sums_a = CellSums::new(a.pixels(), width, height, CELL);
         let sums_b = CellSums::new(b.pixels(), width, height, CELL);
@@ -47,7 +48,7 @@ impl Backdrop {
                     pa
                 } else {
                     pb
-                })
+                }) * scale
             })
             .collect();
         Some(Self {
@@ -71,11 +72,12 @@ impl Backdrop {
         if frame.width() as usize != self.width || frame.height() as usize != self.height {
             return None;
         }
+        let scale = frame.levels_per_count();
         let light: Vec<f32> = frame
             .pixels()
             .iter()
             .zip(&self.levels)
-            .map(|(&p, b)| f32::from(p) - b)
+            .map(|(&p, b)| f32::from(p) * scale - b)
             .collect();
         let noise = picture.noise().hypot(self.noise);
         let noise_map = picture.noise_map().of_difference(

@@ -53,6 +53,11 @@ const JOIN_VALLEY_SHARE: f32 = 0.04;
 /// The valley may exceed that share by this many deviations of a block's mean.
 const JOIN_VALLEY_NOISES: f32 = 3.0;
 
+/// In the measuring window, blocks whose smoothed light lies within this many background
+/// misfits of the background count as none: the background is known no better there, and
+/// over a window of thousands of pixels such residue would outweigh the beam's wings.
+const MOMENT_FLOOR_MISFITS: f32 = 3.0;
+
 /// Half the side of the measuring window, in second-moment radii (1/e² radii of a Gaussian).
 const WINDOW_RADII: f64 = 2.5;
 
@@ -83,8 +88,12 @@ pub struct Beam {
     /// Intensity centroid (first moment), px (x right, y down). Pulled inwards when the
     /// border cuts the beam.
     pub centre: [f64; 2],
-    /// Standard uncertainty of the centre from read noise, px.
+    /// Standard uncertainty of the centre, px: the root of the trace of `covariance`.
     pub uncertainty: f64,
+    /// Covariance of the centre, px² (`[[xx, xy], [xy, yy]]`): every pixel's read noise and
+    /// the background's misfit, propagated through the centroid. It does not hold what the
+    /// beam's own shape, texture or saturation make uncertain.
+    pub covariance: [[f64; 2]; 2],
     /// Second-moment radii along the principal axes (major, minor), px: the 1/e² radii
     /// of a Gaussian with the same moments.
     pub radii: [f64; 2],
@@ -203,7 +212,8 @@ struct Grid {
     smooth: Vec<f32>,
     /// How far one pixel of each block scatters.
     pixel_noise: Vec<f32>,
-    /// How far each smoothed block scatters.
+    /// How far each smoothed block scatters: its pixels' noise, and the background's own
+    /// misfit (structure no background surface follows is not a beam).
     smooth_noise: Vec<f32>,
     /// Blocks averaged either side of a block in `smooth`.
     reach: usize,
@@ -267,6 +277,7 @@ impl Grid {
         // A smoothed block averages (2 reach + 1)² blocks of BLOCK² pixels (fewer at the
         // border).
         let side = ((2 * reach + 1) * BLOCK) as f32;
+        let misfit = picture.background_misfit() as f32;
         let (smooth, smooth_noise) = if reach == 1 {
             let mut smooth = vec![0f32; bw * bh];
             let mut smooth_noise = vec![0f32; bw * bh];
@@ -281,7 +292,7 @@ impl Grid {
                         }
                     }
                     smooth[by * bw + bx] = sum / n;
-                    smooth_noise[by * bw + bx] = (variance / n).sqrt() / side;
+                    smooth_noise[by * bw + bx] = ((variance / n).sqrt() / side).hypot(misfit);
                 }
             }
             (smooth, smooth_noise)
@@ -290,7 +301,7 @@ impl Grid {
             let variances: Vec<f32> = pixel_noise.iter().map(|v| v * v).collect();
             let smooth_noise = box_means(&variances, bw, bh, reach)
                 .into_iter()
-                .map(|v| v.sqrt() / side)
+                .map(|v| (v.sqrt() / side).hypot(misfit))
                 .collect();
             (box_means(&means, bw, bh, reach), smooth_noise)
         };
@@ -637,6 +648,10 @@ struct Moments {
     sxy: f64,
     /// Pixels summed.
     n: f64,
+    /// Σ dx², Σ dy², Σ dx dy over the pixels summed (offsets from the window's centre).
+    gxx: f64,
+    gyy: f64,
+    gxy: f64,
 }
 
 /// The first and second moments of beam `id` over the pixels it owns in the window
@@ -655,6 +670,7 @@ fn window_moments(
     let y0 = (centre[1] - half[1]).floor().max(0.0) as usize;
     let y1 = ((centre[1] + half[1]).ceil().max(0.0) as usize).min(h);
     let light = picture.light();
+    let floor = MOMENT_FLOOR_MISFITS * picture.background_misfit() as f32;
     let mut m = Moments::default();
     if x1 <= x0 {
         return m;
@@ -665,32 +681,40 @@ fn window_moments(
         .collect();
     for y in y0..y1 {
         let block_row = &owner[(y / BLOCK) * grid.bw..(y / BLOCK + 1) * grid.bw];
+        let smooth_row = &grid.smooth[(y / BLOCK) * grid.bw..(y / BLOCK + 1) * grid.bw];
         let row = &light[y * w..(y + 1) * w];
         // Per row in f32 (a few hundred terms), summed into the totals in f64.
         let (mut s, mut sx, mut sxx, mut n) = (0f32, 0f32, 0f32, 0f32);
+        let (mut gx, mut gxx) = (0f32, 0f32);
         let mut x = x0;
         while x < x1 {
             let block = x / BLOCK;
             let end = ((block + 1) * BLOCK).min(x1);
-            if block_row[block] == id {
+            let above_floor = floor <= 0.0 || smooth_row[block] > floor;
+            if block_row[block] == id && above_floor {
                 for (v, d) in row[x..end].iter().zip(&dx[x - x0..end - x0]) {
                     s += v;
                     sx += v * d;
                     sxx += v * d * d;
+                    gx += d;
+                    gxx += d * d;
                 }
                 n += (end - x) as f32;
             }
             x = end;
         }
         let py = y as f64 + 0.5 - centre[1];
-        let (s, sx) = (f64::from(s), f64::from(sx));
+        let (s, sx, n) = (f64::from(s), f64::from(sx), f64::from(n));
         m.s += s;
         m.sx += sx;
         m.sy += s * py;
         m.sxx += f64::from(sxx);
         m.syy += s * py * py;
         m.sxy += sx * py;
-        m.n += f64::from(n);
+        m.n += n;
+        m.gxx += f64::from(gxx);
+        m.gyy += n * py * py;
+        m.gxy += f64::from(gx) * py;
     }
     m
 }
@@ -716,8 +740,11 @@ fn measure(
         signal,
         spread,
     } = footprint;
-    // var(cx) = noise² Σ (x - cx)² / S².
-    let uncertainty = picture.noise() * spread.sqrt() / signal;
+    // cov(cx, cy) = σ² Σ (x - cx)(y - cy) / S², σ the read noise and the background's
+    // misfit together (each pixel's light is known no better than its background).
+    let gain = (picture.noise().hypot(picture.background_misfit()) / signal).powi(2);
+    let covariance = spread.map(|row| row.map(|g| gain * g));
+    let uncertainty = (covariance[0][0] + covariance[1][1]).sqrt();
     let (w, h) = (picture.width(), picture.height());
     let peak = blocks
         .iter()
@@ -748,6 +775,7 @@ fn measure(
     let beam = Beam {
         centre,
         uncertainty,
+        covariance,
         radii,
         angle_deg: angle.to_degrees(),
         signal,
@@ -799,7 +827,12 @@ fn faint_footprint(grid: &Grid, blocks: &[usize]) -> Option<Footprint> {
         radii: [radius, radius],
         angle: 0.0,
         signal: fit.peak * std::f64::consts::PI * fit.radius.powi(2) / 2.0,
-        spread: (2.0 * half).powi(2) * 2.0 * half * half / 3.0,
+        // A square window of side 2 half: (2 half)² pixels, each axis's Σ d² a third of
+        // half² per pixel.
+        spread: [
+            [(2.0 * half).powi(2) * half * half / 3.0, 0.0],
+            [0.0, (2.0 * half).powi(2) * half * half / 3.0],
+        ],
     })
 }
 
@@ -811,8 +844,9 @@ struct Footprint {
     /// Direction of the major axis, radians from +x towards +y.
     angle: f64,
     signal: f64,
-    /// Σ (x - cx)² over the window's pixels, for the centre's uncertainty.
-    spread: f64,
+    /// Σ (x - cx)², Σ (x - cx)(y - cy), Σ (y - cy)² over the window's pixels, for the
+    /// centre's covariance.
+    spread: [[f64; 2]; 2],
 }
 
 /// The footprint of beam `id` (its region blocks `blocks`) from its pixels' moments in a
@@ -872,16 +906,32 @@ fn window_footprint(
     }
     let mean = [m.sx / m.s, m.sy / m.s];
     let centre = [centre[0] + mean[0], centre[1] + mean[1]];
-    let cxx = (m.sxx / m.s - mean[0].powi(2)).max(0.0);
-    let cyy = (m.syy / m.s - mean[1].powi(2)).max(0.0);
+    let cxx = m.sxx / m.s - mean[0].powi(2);
+    let cyy = m.syy / m.s - mean[1].powi(2);
     let cxy = m.sxy / m.s - mean[0] * mean[1];
+    // Light only adds: a spot spreads along every direction. Moments that do not (a
+    // variance of 0 or less along some direction) are those of noise and background
+    // residue summed with both signs, not of a beam.
+    if cxx <= 0.0 || cyy <= 0.0 || cxx * cyy <= cxy * cxy {
+        return None;
+    }
     let (major, minor, angle) = principal(cxx, cyy, cxy);
     Some(Footprint {
         centre,
         radii: [2.0 * major.sqrt(), 2.0 * minor.sqrt()],
         angle,
         signal: m.s,
-        spread: m.n * (half[0].powi(2) + half[1].powi(2)) / 3.0,
+        // About the centroid rather than the window's centre.
+        spread: [
+            [
+                m.gxx - m.n * mean[0].powi(2),
+                m.gxy - m.n * mean[0] * mean[1],
+            ],
+            [
+                m.gxy - m.n * mean[0] * mean[1],
+                m.gyy - m.n * mean[1].powi(2),
+            ],
+        ],
     })
 }
 

@@ -12,6 +12,8 @@ mod changes;
 mod core;
 mod gaussian;
 mod noise;
+#[cfg(test)]
+mod photo_tests;
 mod picture;
 mod register;
 #[cfg(test)]

@@ -84,11 +84,18 @@ impl NoiseMap {
         }
     }
 
-    /// The scatter of the pixels of `raw` (row-major, `width` wide) whose read noise is
-    /// `noise` and which black clips: per cell, that of a clipped normal distribution at
-    /// the cell's mean level. Below black the values are a few rare pixels, far from any
-    /// normal distribution: the scatter is never taken below that at black itself.
-    pub(crate) fn clipped(raw: &[u8], width: usize, height: usize, noise: f64) -> Self {
+    /// The scatter of the pixels of `raw` (row-major, `width` wide, `level_per_count` gray
+    /// levels a count) whose read noise is `noise` and which black clips: per cell, that of
+    /// a clipped normal distribution at the cell's mean level. Below black the values are a
+    /// few rare pixels, far from any normal distribution: the scatter is never taken below
+    /// that at black itself.
+    pub(crate) fn clipped(
+        raw: &[u16],
+        width: usize,
+        height: usize,
+        noise: f64,
+        level_per_count: f64,
+    ) -> Self {
         let CellSums {
             columns,
             rows,
@@ -106,7 +113,7 @@ impl NoiseMap {
                         count += counts[ny * columns + nx];
                     }
                 }
-                let mean = sum / count.max(1.0) / noise;
+                let mean = sum * level_per_count / count.max(1.0) / noise;
                 let scatter = noise * clipped_normal_spread(level_of_clipped_mean(mean));
                 spread.push(scatter.max(floor) as f32);
             }

@@ -1,6 +1,9 @@
 //! A camera frame made ready for measurement: the light above the background at every
 //! pixel. The background is a plane fitted robustly to cell means (ambient light and a
-//! slope cancel; cells holding light are rejected as outliers, and when a fit started from
+//! slope cancel; cells holding light are rejected as outliers), or a quadratic surface where
+//! the cells show a glow that bends across the frame and the plane leaves it behind; how
+//! far the kept cells still scatter about the surface beyond their noise is the
+//! background's own misfit, which light must stand out of to be a beam (and when a fit started from
 //! the darkest cells lies clearly lower, light only adding, spots' tails over most of the
 //! frame had lifted the first; means, not medians, because
 //! a dark level close to zero clips the noise from below and only the mean of the clipped
@@ -9,6 +12,7 @@
 //! that a bright spot smears through the whole frame is measured in the top and bottom
 //! bands and removed, and hot pixels (one pixel far brighter than all its neighbours) are
 //! replaced by their neighbours' mean. Saturated pixels are remembered: they carry no shape.
+//! Frames of any depth are measured at full precision, in gray levels of an 8-bit frame.
 //! Where black clips the noise, how far the pixels scatter varies with the light: a
 //! [`NoiseMap`] says it place by place.
 
@@ -32,6 +36,15 @@ const FIT_ROUNDS: usize = 20;
 /// cells at the image centre.
 const LIFTED_LEVELS: f64 = 1.0;
 
+/// The cells' scatter about the background surface is structure (a misfit) only when it
+/// exceeds their noise this many times; below, it is the noise's own scatter.
+const MISFIT_SIGNIFICANCE: f64 = 1.5;
+
+/// A quadratic background replaces the plane when the kept cells' scatter about it is at
+/// most this share of their scatter about the plane (beyond their noise): three more terms
+/// must explain most of what the plane leaves, not a little of it.
+const QUADRATIC_GAIN: f64 = 0.5;
+
 /// Share of the image height at the top and at the bottom where column streaks are read.
 const BAND_SHARE: f64 = 0.08;
 
@@ -47,8 +60,13 @@ const HOT_NOISES: f64 = 6.0;
 /// ... and all but one of its eight neighbours by this factor.
 const HOT_RATIO: f32 = 2.5;
 
-/// The floor of the noise estimate, gray levels (quantisation alone gives 0.29).
-const MIN_NOISE: f64 = 0.3;
+/// The floor of the noise estimate, in the frame's quantisation steps (quantisation alone
+/// gives 0.29).
+const MIN_NOISE_STEPS: f64 = 0.3;
+
+/// Histogram bins at most: a 16-bit frame's are 16 counts wide (1/16 gray level), finer
+/// than any camera's read noise.
+const MAX_BINS: u32 = 4096;
 /// Above this share of background pixels at 0, the noise is read from the spread above black
 /// instead of from neighbour differences (which clipping shrinks).
 const CLIPPED_DARK_SHARE: f64 = 0.02;
@@ -77,6 +95,9 @@ pub struct Picture {
     noise_map: NoiseMap,
     /// The background level at the image centre, gray levels.
     background: f64,
+    /// How far the background's cells scatter about the fitted surface beyond their noise,
+    /// gray levels: structure in the background no surface follows.
+    misfit: f64,
 }
 
 impl Picture {
@@ -84,38 +105,28 @@ impl Picture {
     pub fn new(frame: &Frame) -> Self {
         let (width, height) = (frame.width() as usize, frame.height() as usize);
         let raw = frame.pixels();
-        let plane = Plane::fit(raw, width, height);
+        let depth = Depth::of(frame);
+        let plane = Plane::fit(raw, width, height, depth);
         let noise = plane.noise;
+        let scale = depth.level_per_count as f32;
         let mut light = Vec::with_capacity(raw.len());
         for (y, row) in raw.chunks_exact(width).enumerate() {
-            if plane.clipped {
-                let background = plane.background_row(y, width);
-                light.extend(row.iter().zip(&background).map(|(&p, b)| f32::from(p) - b));
-            } else {
-                let start = plane.at(0, y) as f32;
-                let step = plane.b as f32;
-                light.extend(
-                    row.iter()
-                        .enumerate()
-                        .map(|(x, &p)| f32::from(p) - (start + step * x as f32)),
-                );
-            }
+            let background = plane.background_row(y, width);
+            light.extend(
+                row.iter()
+                    .zip(&background)
+                    .map(|(&p, b)| f32::from(p) * scale - b),
+            );
         }
         remove_column_streaks(&mut light, width, height, noise);
         repair_hot_pixels(&mut light, width, height, noise);
-        let top = raw.iter().copied().max().unwrap_or(0);
-        let plateau = bytecount(raw, top);
-        // The brightest level is saturation when it is 255, or when light piles up on it:
-        // several pixels, more than on the level just below (the flat top of an unsaturated
-        // beam holds fewer pixels than the ring around it).
-        let piled_up = plateau >= 8 && plateau > bytecount(raw, top.saturating_sub(1));
-        let saturation = (top == u8::MAX || piled_up).then_some(top);
+        let saturation = saturation_value(raw, frame.full_scale());
         let saturated = raw
             .iter()
             .map(|&p| Some(p) == saturation && p > 0)
             .collect();
         let noise_map = if plane.clipped {
-            NoiseMap::clipped(raw, width, height, noise)
+            NoiseMap::clipped(raw, width, height, noise, depth.level_per_count)
         } else {
             NoiseMap::uniform(width, height, noise)
         };
@@ -126,7 +137,8 @@ impl Picture {
             saturated,
             noise,
             noise_map,
-            background: plane.at(width / 2, height / 2),
+            background: plane.surface.at(width as f64 / 2.0, height as f64 / 2.0),
+            misfit: plane.misfit,
         }
     }
 
@@ -168,6 +180,12 @@ impl Picture {
         self.background
     }
 
+    /// How far the background departs from the surface fitted to it, beyond the noise,
+    /// gray levels (0 where a backdrop or another frame took the background off).
+    pub fn background_misfit(&self) -> f64 {
+        self.misfit
+    }
+
     /// This picture with its light replaced by `light` (what is left once stationary light
     /// is taken off), noise `noise`, scattering as `noise_map` says; saturated pixels stay.
     pub(crate) fn with_light(&self, light: Vec<f32>, noise: f64, noise_map: NoiseMap) -> Self {
@@ -176,6 +194,7 @@ impl Picture {
             noise,
             noise_map,
             saturated: self.saturated.clone(),
+            misfit: 0.0,
             ..*self
         }
     }
@@ -197,31 +216,103 @@ impl Picture {
             noise,
             noise_map,
             background: 0.0,
+            misfit: 0.0,
         }
     }
 }
 
-/// The background plane `a + b x + c y` and the read noise; `clipped` when black clips
-/// enough of the background that a pixel's expected value is not the plane's.
+/// The value at which `raw` (full scale `full_scale`) saturates, if any pixel does: its
+/// brightest value when that is the full scale, or when light piles up on it: several
+/// pixels, more than on the next value below that any pixel holds (the flat top of an
+/// unsaturated beam holds fewer pixels than the ring around it; a camera that writes 12-bit
+/// data shifted into 16-bit words leaves the values between its steps empty).
+pub fn saturation_value(raw: &[u16], full_scale: u16) -> Option<u16> {
+    let top = raw.iter().copied().max()?;
+    let plateau = raw.iter().filter(|&&p| p == top).count();
+    let below = raw.iter().copied().filter(|&p| p < top).max();
+    let below_count = below.map_or(0, |b| raw.iter().filter(|&&p| p == b).count());
+    let piled_up = plateau >= 8 && plateau > below_count;
+    (top == full_scale || piled_up).then_some(top)
+}
+
+/// How a frame's counts become gray levels, and the histogram bins its statistics use.
+#[derive(Clone, Copy, Debug)]
+struct Depth {
+    /// Gray levels of an 8-bit frame per count.
+    level_per_count: f64,
+    /// Counts per histogram bin.
+    bin_counts: u16,
+    /// Histogram bins.
+    bins: usize,
+}
+
+impl Depth {
+    fn of(frame: &Frame) -> Self {
+        let values = u32::from(frame.full_scale()) + 1;
+        let bin_counts = values.div_ceil(MAX_BINS).max(1);
+        Self {
+            level_per_count: f64::from(frame.levels_per_count()),
+            bin_counts: bin_counts as u16,
+            bins: values.div_ceil(bin_counts) as usize,
+        }
+    }
+
+    /// Gray levels per bin: the quantisation step of the statistics.
+    fn step(&self) -> f64 {
+        f64::from(self.bin_counts) * self.level_per_count
+    }
+}
+
+/// A smooth background surface over the frame: a plane `a + b u + c v`, or with the
+/// quadratic terms `d u² + e u v + f v²` too, in coordinates `u`, `v` running from -1 to 1
+/// across the frame (so the terms are of one size and the fit well conditioned).
+#[derive(Clone, Copy, Debug)]
+struct Surface {
+    coefficients: [f64; 6],
+    /// Terms used: 3 (a plane) or 6.
+    terms: usize,
+    half: [f64; 2],
+}
+
+impl Surface {
+    fn new(width: usize, height: usize, terms: usize) -> Self {
+        Self {
+            coefficients: [0.0; 6],
+            terms,
+            half: [width as f64 / 2.0, height as f64 / 2.0],
+        }
+    }
+
+    /// The terms at pixel position (`x`, `y`).
+    fn terms_at(&self, x: f64, y: f64) -> [f64; 6] {
+        let (u, v) = (x / self.half[0] - 1.0, y / self.half[1] - 1.0);
+        [1.0, u, v, u * u, u * v, v * v]
+    }
+
+    /// The level at pixel position (`x`, `y`).
+    fn at(&self, x: f64, y: f64) -> f64 {
+        let t = self.terms_at(x, y);
+        (0..self.terms).map(|k| self.coefficients[k] * t[k]).sum()
+    }
+}
+
+/// The background surface and the read noise; `clipped` when black clips enough of the
+/// background that a pixel's expected value is not the surface's.
 struct Plane {
-    a: f64,
-    b: f64,
-    c: f64,
+    surface: Surface,
     noise: f64,
     clipped: bool,
+    misfit: f64,
 }
 
 impl Plane {
-    fn at(&self, x: usize, y: usize) -> f64 {
-        self.a + self.b * (x as f64 + 0.5) + self.c * (y as f64 + 0.5)
-    }
-
-    /// The background a pixel shows: the plane, or where black clips the noise, the mean of
-    /// the clipped values (a plane sloping below black reads 0 there, not less).
+    /// The background a pixel shows: the surface, or where black clips the noise, the mean
+    /// of the clipped values (a surface sloping below black reads 0 there, not less).
     fn background_row(&self, y: usize, width: usize) -> Vec<f32> {
+        let y = y as f64 + 0.5;
         (0..width)
             .map(|x| {
-                let level = self.at(x, y);
+                let level = self.surface.at(x as f64 + 0.5, y);
                 if self.clipped {
                     (self.noise * clipped_normal_mean(level / self.noise)) as f32
                 } else {
@@ -233,7 +324,7 @@ impl Plane {
 
     /// Fits the plane to cell medians, rejecting cells with light, and measures the noise
     /// from horizontal neighbour differences in the cells kept.
-    fn fit(raw: &[u8], width: usize, height: usize) -> Self {
+    fn fit(raw: &[u16], width: usize, height: usize, depth: Depth) -> Self {
         let cell = (width.min(height) / CELLS_PER_SIDE)
             .max(16)
             .min(width.min(height).max(1));
@@ -241,7 +332,7 @@ impl Plane {
         let mut cells = Vec::with_capacity(cw * ch);
         for cy in 0..ch {
             for cx in 0..cw {
-                let mut histogram = Histogram::default();
+                let mut histogram = Histogram::new(depth);
                 let (x0, y0) = (cx * cell, cy * cell);
                 let (x1, y1) = ((x0 + cell).min(width), (y0 + cell).min(height));
                 for y in (y0..y1).step_by(2) {
@@ -283,7 +374,8 @@ impl Plane {
         // most of the frame; light only adds, so a fit started from the darkest cells that
         // lies clearly lower is the background then.
         let known: Vec<bool> = cells.iter().map(|c| c.level.is_some()).collect();
-        let (mut plane, mut keep) = robust_plane(&cells, known, 5);
+        let flat = Surface::new(width, height, 3);
+        let (mut plane, mut keep) = robust_surface(&cells, flat, known, 5);
         let darkest = quantile_of(
             cells.iter().filter_map(|c| c.level).collect(),
             DARKEST_START_SHARE,
@@ -292,12 +384,12 @@ impl Plane {
             .iter()
             .map(|c| c.level.zip(darkest).is_some_and(|(l, d)| l <= d))
             .collect();
-        let (low, low_keep) = robust_plane(&cells, dark, FIT_ROUNDS);
-        let centre = |p: &[f64; 3]| p[0] + p[1] * width as f64 / 2.0 + p[2] * height as f64 / 2.0;
+        let (low, low_keep) = robust_surface(&cells, flat, dark, FIT_ROUNDS);
+        let centre = |s: &Surface| s.at(width as f64 / 2.0, height as f64 / 2.0);
         if centre(&low) < centre(&plane) - LIFTED_LEVELS {
             (plane, keep) = (low, low_keep);
         }
-        let mut differences = Histogram::default();
+        let mut differences = Histogram::new(depth);
         let kept_cells = || cells.iter().zip(&keep).filter(|(_, k)| **k).map(|(c, _)| c);
         for Cell {
             bounds: [x0, y0, x1, y1],
@@ -319,13 +411,38 @@ impl Plane {
             None
         }
         .unwrap_or_else(|| differences.noise_from_differences())
-        .max(MIN_NOISE);
+        .max(MIN_NOISE_STEPS * depth.level_per_count);
+        // A cell's level is the mean of about `samples` pixels: that much of its scatter
+        // about the surface is noise.
+        let samples = kept_cells().map(|c| f64::from(c.total)).sum::<f64>()
+            / kept_cells().count().max(1) as f64;
+        let cell_noise = noise / samples.max(1.0).sqrt();
+        let beyond_noise = |spread: f64| {
+            if spread > MISFIT_SIGNIFICANCE * cell_noise {
+                (spread.powi(2) - cell_noise.powi(2)).sqrt()
+            } else {
+                0.0
+            }
+        };
+        let mut misfit = beyond_noise(scatter(&cells, &plane, &keep));
+        // A glow that bends across the frame: a quadratic surface from the plane's cells,
+        // when it explains most of what the plane leaves.
+        let (bowl, bowl_keep) = robust_surface(
+            &cells,
+            Surface { terms: 6, ..plane },
+            keep.clone(),
+            FIT_ROUNDS,
+        );
+        let bowl_misfit = beyond_noise(scatter(&cells, &bowl, &bowl_keep));
+        if bowl_keep.iter().filter(|k| **k).count() >= 12 && bowl_misfit <= QUADRATIC_GAIN * misfit
+        {
+            (plane, misfit) = (bowl, bowl_misfit);
+        }
         Self {
-            a: plane[0],
-            b: plane[1],
-            c: plane[2],
+            surface: plane,
             noise,
             clipped,
+            misfit,
         }
     }
 }
@@ -352,53 +469,61 @@ const NORMAL_POINTS: [(f64, f64); 5] = [
     (2.0, 0.9772),
 ];
 
-/// How many bytes equal `value`.
-fn bytecount(bytes: &[u8], value: u8) -> usize {
-    bytes.iter().map(|&b| usize::from(b == value)).sum()
-}
-
-/// Counts of 8-bit values: medians, trimmed means and spreads in one pass over 256 bins.
+/// Counts of a frame's values in bins (one per value up to 12 bits): medians, trimmed means
+/// and spreads in one pass over the bins, in gray levels.
 struct Histogram {
-    counts: [u32; 256],
+    counts: Vec<u32>,
     total: u32,
-}
-
-impl Default for Histogram {
-    fn default() -> Self {
-        Self {
-            counts: [0; 256],
-            total: 0,
-        }
-    }
+    depth: Depth,
 }
 
 impl Histogram {
-    fn add(&mut self, value: u8) {
-        self.counts[usize::from(value)] += 1;
+    fn new(depth: Depth) -> Self {
+        Self {
+            counts: vec![0; depth.bins],
+            total: 0,
+            depth,
+        }
+    }
+
+    fn add(&mut self, value: u16) {
+        self.counts[usize::from(value / self.depth.bin_counts)] += 1;
         self.total += 1;
     }
 
-    /// The smallest value with at least `share` of the counts at or below it.
-    fn quantile(&self, share: f64) -> u8 {
+    /// The gray level bin `bin` stands for (its middle).
+    fn level(&self, bin: usize) -> f64 {
+        let counts = self.depth.bin_counts;
+        (bin as f64 * f64::from(counts) + f64::from(counts - 1) / 2.0) * self.depth.level_per_count
+    }
+
+    /// The bin of the smallest value with at least `share` of the counts at or below it.
+    fn quantile_bin(&self, share: f64) -> usize {
         let wanted = (share * f64::from(self.total)).ceil().max(1.0) as u32;
         let mut seen = 0;
-        for (value, &count) in self.counts.iter().enumerate() {
+        for (bin, &count) in self.counts.iter().enumerate() {
             seen += count;
             if seen >= wanted {
-                return value as u8;
+                return bin;
             }
         }
-        u8::MAX
+        self.counts.len() - 1
+    }
+
+    /// The smallest level with at least `share` of the counts at or below it.
+    fn quantile(&self, share: f64) -> f64 {
+        self.level(self.quantile_bin(share))
     }
 
     /// The mean without single outliers far above the median (hot pixels): the expected
     /// level of a pixel, clipping at black included.
     fn robust_mean(&self) -> f64 {
-        let median = f64::from(self.quantile(0.5));
+        let median_bin = self.quantile_bin(0.5);
+        let median = self.level(median_bin);
         // The median absolute deviation, from the distribution of |v - median|.
-        let mut deviations = [0u32; 256];
-        for (value, &count) in self.counts.iter().enumerate() {
-            deviations[(value as f64 - median).abs() as usize] += count;
+        let mut deviations = vec![0u32; self.counts.len()];
+        for (bin, &count) in self.counts.iter().enumerate() {
+            deviations[bin.abs_diff(median_bin)] += count;
         }
         let half = self.total.div_ceil(2);
         let mut seen = 0;
@@ -408,7 +533,8 @@ impl Histogram {
                 seen += count;
                 seen >= half
             })
-            .unwrap_or(0) as f64;
+            .unwrap_or(0) as f64
+            * self.depth.step();
         // Half the pixels of a dark level near black read 0, which shrinks the MAD far
         // below the noise: the spread above black keeps the cut out of the noise's tail.
         let spread = (1.4826 * mad)
@@ -419,9 +545,10 @@ impl Histogram {
             .counts
             .iter()
             .enumerate()
-            .filter(|(value, _)| (*value as f64) <= limit)
-            .fold((0.0, 0.0), |(s, n), (value, &count)| {
-                (s + value as f64 * f64::from(count), n + f64::from(count))
+            .map(|(bin, &count)| (self.level(bin), count))
+            .filter(|&(level, _)| level <= limit)
+            .fold((0.0, 0.0), |(s, n), (level, count)| {
+                (s + level * f64::from(count), n + f64::from(count))
             });
         if n == 0.0 { median } else { sum / n }
     }
@@ -436,10 +563,7 @@ impl Histogram {
             .position(|&(_, p)| p > black + CLIP_MARGIN)?;
         let (z_low, p_low) = NORMAL_POINTS[lower];
         let (z_high, p_high) = *NORMAL_POINTS.get(lower + 2)?;
-        let (low, high) = (
-            f64::from(self.quantile(p_low)),
-            f64::from(self.quantile(p_high)),
-        );
+        let (low, high) = (self.quantile(p_low), self.quantile(p_high));
         let noise = (high - low) / (z_high - z_low);
         Some((low - z_low * noise, noise))
     }
@@ -447,16 +571,16 @@ impl Histogram {
     /// The read noise from absolute differences of neighbouring background pixels: their
     /// mean over the lower 98 % (hot pixels and edges dropped), which for Gaussian noise of
     /// standard deviation σ is 0.953 · 2σ/√π. A mean, not a median, because differences of
-    /// 8-bit pixels are whole numbers.
+    /// pixels are whole numbers of counts.
     fn noise_from_differences(&self) -> f64 {
         if self.total == 0 {
             return 0.0;
         }
         let mut keep = (f64::from(self.total) * 0.98).ceil() as u32;
         let (mut sum, mut n) = (0.0, 0.0);
-        for (value, &count) in self.counts.iter().enumerate() {
+        for (bin, &count) in self.counts.iter().enumerate() {
             let taken = count.min(keep);
-            sum += value as f64 * f64::from(taken);
+            sum += self.level(bin) * f64::from(taken);
             n += f64::from(taken);
             keep -= taken;
             if keep == 0 {
@@ -481,17 +605,38 @@ fn quantile_of(mut values: Vec<f64>, share: f64) -> Option<f64> {
     Some(*values.select_nth_unstable_by(at, f64::total_cmp).1)
 }
 
-/// A plane fitted to the cells from those in `keep`, rejecting and readmitting cells by
-/// their residuals for at most `rounds` rounds: the plane and the cells it kept.
-fn robust_plane(cells: &[Cell], mut keep: Vec<bool>, rounds: usize) -> ([f64; 3], Vec<bool>) {
-    let mut plane = [0.0; 3];
+/// The robust scatter (1.4826 times the median absolute residual) of the kept cells'
+/// levels about `surface`, gray levels.
+fn scatter(cells: &[Cell], surface: &Surface, keep: &[bool]) -> f64 {
+    let residuals = cells
+        .iter()
+        .zip(keep)
+        .filter(|(_, k)| **k)
+        .filter_map(|(c, _)| {
+            c.level
+                .map(|l| (l - surface.at(c.centre[0], c.centre[1])).abs())
+        })
+        .collect();
+    1.4826 * median(residuals).unwrap_or(0.0)
+}
+
+/// A surface with `start`'s terms fitted to the cells from those in `keep`, rejecting and
+/// readmitting cells by their residuals for at most `rounds` rounds: the surface and the
+/// cells it kept.
+fn robust_surface(
+    cells: &[Cell],
+    start: Surface,
+    mut keep: Vec<bool>,
+    rounds: usize,
+) -> (Surface, Vec<bool>) {
+    let mut surface = start;
     for _ in 0..rounds {
-        plane = least_squares_plane(cells, &keep).unwrap_or(plane);
+        surface = least_squares_surface(cells, &keep, surface).unwrap_or(surface);
         let residuals: Vec<f64> = cells
             .iter()
             .map(|c| {
                 c.level.map_or(f64::INFINITY, |level| {
-                    level - (plane[0] + plane[1] * c.centre[0] + plane[2] * c.centre[1])
+                    level - surface.at(c.centre[0], c.centre[1])
                 })
             })
             .collect();
@@ -504,25 +649,32 @@ fn robust_plane(cells: &[Cell], mut keep: Vec<bool>, rounds: usize) -> ([f64; 3]
         let spread = 1.4826 * median(kept).unwrap_or(0.0);
         let limit = CELL_OUTLIER * spread.max(0.5);
         let next: Vec<bool> = residuals.iter().map(|r| r.abs() <= limit).collect();
-        if next == keep || next.iter().filter(|k| **k).count() < 3 {
+        if next == keep || next.iter().filter(|k| **k).count() < surface.terms {
             break;
         }
         keep = next;
     }
-    (plane, keep)
+    (surface, keep)
 }
 
-/// Least squares of `m = a + b x + c y` over the kept cells.
-fn least_squares_plane(cells: &[Cell], keep: &[bool]) -> Option<[f64; 3]> {
-    let mut normal = nalgebra::Matrix3::<f64>::zeros();
-    let mut rhs = nalgebra::Vector3::<f64>::zeros();
+/// Least squares of the cells' levels over `surface`'s terms, from the kept cells.
+fn least_squares_surface(cells: &[Cell], keep: &[bool], surface: Surface) -> Option<Surface> {
+    let n = surface.terms;
+    let mut normal = nalgebra::DMatrix::<f64>::zeros(n, n);
+    let mut rhs = nalgebra::DVector::<f64>::zeros(n);
     for (cell, _) in cells.iter().zip(keep).filter(|(_, k)| **k) {
-        let row = nalgebra::Vector3::new(1.0, cell.centre[0], cell.centre[1]);
-        normal += row * row.transpose();
-        rhs += row * cell.level.unwrap_or(0.0);
+        let terms = surface.terms_at(cell.centre[0], cell.centre[1]);
+        let row = nalgebra::DVector::from_column_slice(&terms[..n]);
+        normal += &row * row.transpose();
+        rhs += &row * cell.level.unwrap_or(0.0);
     }
-    let solution = normal.try_inverse()? * rhs;
-    Some([solution[0], solution[1], solution[2]])
+    let solution = normal.cholesky()?.solve(&rhs);
+    let mut coefficients = [0.0; 6];
+    coefficients[..n].copy_from_slice(solution.as_slice());
+    Some(Surface {
+        coefficients,
+        ..surface
+    })
 }
 
 /// Removes a constant offset from each column whose top and bottom bands, and two bands

@@ -134,8 +134,8 @@ fn saturation_is_the_level_light_piles_up_on_not_a_flat_unsaturated_top() {
     let truth = [290.5, 210.3];
     // A camera that clips at 200, not 255.
     let bright = bench(10).gaussian(truth, 40.0, 900.0).frame();
-    let clipped: Vec<u8> = bright.pixels().iter().map(|&p| p.min(200)).collect();
-    let frame = optalign_optics::Frame::new(W as u32, H as u32, clipped).unwrap();
+    let clipped: Vec<u16> = bright.pixels().iter().map(|&p| p.min(200)).collect();
+    let frame = optalign_optics::Frame::deep(W as u32, H as u32, clipped, 255).unwrap();
     let beam = find_beams(&Picture::new(&frame))[0];
     assert!(beam.saturated, "{beam:?}");
     // No noise: the top of an unsaturated beam is a flat plateau of one gray level.

@@ -147,7 +147,7 @@ pub enum ClientError {
         waited: Duration,
     },
     #[error(
-        "the outcome of {request} (request {id:#010x}) on controller at {endpoint} is unknown: {why}"
+        "outcome unknown: {request} (request {id:#010x}) on controller at {endpoint}: {why}"
     )]
     OutcomeUnknown {
         endpoint: Endpoint,
@@ -167,6 +167,9 @@ pub enum Unknown {
     /// The controller no longer remembers the move (too many moves since).
     #[error("the controller no longer remembers it")]
     Forgotten,
+    /// It was sent and no answer came (the controller or the link failed): it may have run.
+    #[error("it was sent and no answer came back, so it may have run")]
+    Unanswered,
 }
 
 impl ClientError {
@@ -330,26 +333,51 @@ impl Client {
         command: Command,
     ) -> Result<Reply, ClientError> {
         let name = command.name();
+        let effect = command.has_effect() && !matches!(command, Command::Stop | Command::EmergencyStop);
         let deadline = self.options.deadline;
-        tokio::time::timeout(deadline, self.attempts(Request { id, command }))
-            .await
-            .unwrap_or_else(|_| {
-                Err(ClientError::Deadline {
-                    endpoint: self.endpoint.clone(),
-                    request: name,
-                    deadline,
-                })
+        let mut sent_to = None;
+        let outcome = tokio::time::timeout(
+            deadline,
+            self.attempts(Request { id, command }, &mut sent_to),
+        )
+        .await
+        .unwrap_or_else(|_| {
+            Err(ClientError::Deadline {
+                endpoint: self.endpoint.clone(),
+                request: name,
+                deadline,
             })
+        });
+        match outcome {
+            // It went out and no answer came back: the controller may have run it.
+            Err(
+                ClientError::Timeout { .. }
+                | ClientError::Io { .. }
+                | ClientError::Connect { .. }
+                | ClientError::SendTimeout { .. }
+                | ClientError::Deadline { .. },
+            ) if effect && sent_to.is_some() => Err(ClientError::OutcomeUnknown {
+                endpoint: self.endpoint.clone(),
+                request: name,
+                id: id.0,
+                why: Unknown::Unanswered,
+            }),
+            other => other,
+        }
     }
 
-    /// Sends `request` until it is answered, within the attempts.
-    async fn attempts(&self, request: Request) -> Result<Reply, ClientError> {
+    /// Sends `request` until it is answered, within the attempts; `sent_to` records the
+    /// start-up it went to (see [`Self::send`]).
+    async fn attempts(
+        &self,
+        request: Request,
+        sent_to: &mut Option<u64>,
+    ) -> Result<Reply, ClientError> {
         let id = request.id;
         let attempts = self.options.attempts.max(1);
-        let mut sent_to = None;
         let mut last_error = None;
         for attempt in 1..=attempts {
-            match self.exchange(&request, &mut sent_to).await {
+            match self.exchange(&request, sent_to).await {
                 Ok(Reply::Error(error)) if error.code == ErrorCode::HANDSHAKE_REQUIRED => {
                     // The controller no longer knows this session (it restarted on a link
                     // that stayed up): shake hands again, then see who answers.

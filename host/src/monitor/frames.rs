@@ -109,7 +109,7 @@ impl FrameStore {
         };
         let (frame, png) = match (newest, folder) {
             (Some(frame), _) => {
-                let png = frame.encode_png().context("encoding the frame")?;
+                let png = frame.encode_8bit_png().context("encoding the frame")?;
                 (frame, png)
             }
             (None, Some(folder)) => {
@@ -119,7 +119,8 @@ impl FrameStore {
                 };
                 let frame = Frame::decode_png(&png)
                     .with_context(|| format!("{} is not a readable PNG", path.display()))?;
-                (Arc::new(frame), png)
+                let shown = frame.encode_8bit_png().context("encoding the frame")?;
+                (Arc::new(frame), shown)
             }
             (None, None) => return Ok(None),
         };

@@ -34,6 +34,7 @@ pub fn area_average(frame: &Frame, width: u32, height: u32) -> anyhow::Result<Fr
     let rows = coverage(frame.height() as usize, h);
     let mut row_sums = vec![0f32; w];
     let mut out = Vec::with_capacity(w * h);
+    let full_scale = f32::from(frame.full_scale());
     for row_cover in &rows {
         row_sums.fill(0.0);
         for &(y, row_weight) in row_cover {
@@ -46,9 +47,13 @@ pub fn area_average(frame: &Frame, width: u32, height: u32) -> anyhow::Result<Fr
                 *sum += across * row_weight;
             }
         }
-        out.extend(row_sums.iter().map(|&v| v.round().clamp(0.0, 255.0) as u8));
+        out.extend(
+            row_sums
+                .iter()
+                .map(|&v| v.round().clamp(0.0, full_scale) as u16),
+        );
     }
-    Ok(Frame::new(width, height, out)?)
+    Ok(Frame::deep(width, height, out, frame.full_scale())?)
 }
 
 #[cfg(test)]

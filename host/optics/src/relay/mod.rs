@@ -173,7 +173,11 @@ impl Relay {
             params.camera.width_px as usize,
             params.camera.height_px as usize,
             key,
-        );
+        )
+        .map_err(|reason| ScenarioError::Invalid {
+            field: "relay.realism.background_photo".into(),
+            reason,
+        })?;
         Ok(Self {
             optics: Optics::new(params),
             offsets,
@@ -213,8 +217,13 @@ impl Relay {
             .and_then(|beam| plane.intersect(&beam.ray).map(|hit| (beam, hit)));
         let Some((beam, [u, v])) = lit else {
             let pixels = self.sensor.expose(&readout, |_, _| false);
-            return Frame::new(p.camera.width_px, p.camera.height_px, pixels)
-                .expect("buffer sized to the frame");
+            return Frame::deep(
+                p.camera.width_px,
+                p.camera.height_px,
+                pixels,
+                readout.full_scale(),
+            )
+            .expect("buffer sized to the frame");
         };
 
         let draw = FrameDraw::new(&p.realism, self.key, frame_index);
@@ -271,8 +280,13 @@ impl Relay {
             }
             lit
         });
-        Frame::new(p.camera.width_px, p.camera.height_px, pixels)
-            .expect("buffer sized to the frame")
+        Frame::deep(
+            p.camera.width_px,
+            p.camera.height_px,
+            pixels,
+            readout.full_scale(),
+        )
+        .expect("buffer sized to the frame")
     }
 }
 

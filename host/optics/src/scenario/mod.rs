@@ -19,7 +19,7 @@ pub use cavity::{
 pub(crate) use check::MAX_IMAGE_SIDE_PX;
 pub use michelson::MichelsonParams;
 pub use noise::NoiseParams;
-pub use realism::{BeamProfile, RealismParams, StraySpot, Texture};
+pub use realism::{BackgroundPhoto, BeamProfile, RealismParams, StraySpot, Texture};
 pub use relay::{RelayCameraParams, RelayParams, SpeckleParams};
 
 use serde::{Deserialize, Serialize};

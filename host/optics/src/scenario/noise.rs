@@ -1,4 +1,5 @@
-//! Camera read-out parameters shared by the three scenes: dark level, read noise, saturation.
+//! Camera read-out parameters shared by the three scenes: dark level, read noise, saturation,
+//! depth.
 
 use serde::{Deserialize, Serialize};
 
@@ -18,6 +19,10 @@ pub struct NoiseParams {
     pub std: f64,
     /// Gray level at which pixels saturate (at most 255). Default 255.
     pub saturation_level: f64,
+    /// The frames' depth: 8 (8-bit), 12 (12-bit data in 16-bit words, full scale 4095) or 16
+    /// bits. Levels and noise are in gray levels of an 8-bit frame at every depth; deeper
+    /// frames keep their fractions. Default 8.
+    pub bits: u8,
     /// Mixed into the noise stream; change it for another noise realisation of the same scene.
     /// Default 0.
     pub seed: u64,
@@ -29,6 +34,7 @@ impl Default for NoiseParams {
             background_level: 6.0,
             std: 2.5,
             saturation_level: 255.0,
+            bits: 8,
             seed: 0,
         }
     }
@@ -39,6 +45,22 @@ impl NoiseParams {
         let check = Check::new(prefix);
         check.within("background_level", self.background_level, 0.0, 255.0)?;
         check.within("std", self.std, 0.0, 100.0)?;
-        check.within("saturation_level", self.saturation_level, 1.0, 255.0)
+        check.within("saturation_level", self.saturation_level, 1.0, 255.0)?;
+        if ![8, 12, 16].contains(&self.bits) {
+            return Err(ScenarioError::Invalid {
+                field: check.path("bits"),
+                reason: format!("must be 8, 12 or 16, got {}", self.bits),
+            });
+        }
+        Ok(())
+    }
+
+    /// The largest pixel value of the frames: 255, 4095 or 65535.
+    pub fn full_scale(&self) -> u16 {
+        match self.bits {
+            12 => crate::frame::FULL_SCALE_12,
+            16 => crate::frame::FULL_SCALE_16,
+            _ => crate::frame::FULL_SCALE_8,
+        }
     }
 }

@@ -1,10 +1,11 @@
 //! The realism layers every scene can add on top of its plain model (`[<scene>.realism]`):
 //! the beam's shape and texture, laser power flicker and pointing jitter, and what a real
 //! camera adds (ambient light and a sloping background, hot pixels, stationary stray spots,
-//! a read-out smear column, the sensor's rotation and a mirrored image). Every layer is off
-//! by default, so a scene without the table renders exactly as before.
+//! a read-out smear column, a photograph as the stationary background, the sensor's rotation
+//! and a mirrored image). Every layer is off by default, so a scene without the table renders
+//! exactly as before.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
@@ -32,10 +33,16 @@ pub enum BeamProfile {
     /// A flat top: a super-Gaussian exp(-2 (r/w)^order); order 2 is a Gaussian, 8 to 20 a
     /// flat disc with a soft edge.
     TopHat { order: f64 },
-    /// A grayscale photograph of a real beam (PNG, 8 or 16 bit), background-subtracted,
-    /// centred on its intensity centroid and scaled so its second-moment radius equals w. A
-    /// relative path is taken from the scenario file's folder.
-    Image { path: PathBuf },
+    /// A grayscale photograph of a real beam (PNG, JPEG or TIFF, 8 or 16 bit), or the part
+    /// `crop = [x, y, width, height]` (px) of it that holds the beam (the rest of the photo,
+    /// ghosts and glow, does not move with the beam), background-subtracted, centred on its
+    /// intensity centroid and scaled so its second-moment radius equals w. A relative path
+    /// is taken from the scenario file's folder.
+    Image {
+        path: PathBuf,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        crop: Option<[u32; 4]>,
+    },
 }
 
 impl BeamProfile {
@@ -65,7 +72,7 @@ impl BeamProfile {
                 check.finite(&format!("{field}.angle_deg"), *angle_deg)
             }
             Self::TopHat { order } => check.within(&format!("{field}.order"), *order, 2.0, 50.0),
-            Self::Image { path } => crate::profile::load_profile_image(path)
+            Self::Image { path, crop } => crate::profile::load_profile_image(path, *crop)
                 .map(|_| ())
                 .map_err(|reason| ScenarioError::Invalid {
                     field: check.path(&format!("{field}.path")),
@@ -138,6 +145,34 @@ impl Default for StraySpot {
     }
 }
 
+/// A photograph as the light that stays put on the camera (its dark level, glow, ghosts),
+/// stretched over the frame and added to the scene's light at its own precision.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BackgroundPhoto {
+    /// The photograph (PNG, JPEG or TIFF, 8 or 16 bit); a relative path is taken from the
+    /// scenario file's folder.
+    pub path: PathBuf,
+    /// Boxes `[x, y, width, height]` (photo px) filled in from their rims: the photographed
+    /// beam, which would otherwise stay put as a bright spot. Default none.
+    #[serde(default)]
+    pub erase: Vec<[u32; 4]>,
+    /// Factor on the photograph's gray levels. Default 1.
+    #[serde(default = "unit_gain")]
+    pub gain: f64,
+}
+
+fn unit_gain() -> f64 {
+    1.0
+}
+
+/// `path` taken from `base` when it is relative.
+fn resolved(path: &mut PathBuf, base: &Path) {
+    if path.is_relative() {
+        *path = base.join(&*path);
+    }
+}
+
 /// The realism layers of one scene. All off by default.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
 #[serde(default, deny_unknown_fields)]
@@ -169,6 +204,8 @@ pub struct RealismParams {
     pub smear: f64,
     /// Stationary spots of stray light. Default none.
     pub stray_spots: Vec<StraySpot>,
+    /// A photograph as the stationary background. Default none.
+    pub background_photo: Option<BackgroundPhoto>,
     /// The camera turned about its optical axis, degrees (image +x towards +y). Every motion
     /// and shape on the image turns with it. Default 0.
     pub camera_rotation_deg: f64,
@@ -201,7 +238,30 @@ impl RealismParams {
             check.within(&field("radius_px"), spot.radius_px, 0.5, 10_000.0)?;
             check.within(&field("peak_level"), spot.peak_level, 0.0, 1e5)?;
         }
+        if let Some(photo) = &self.background_photo {
+            check.within("background_photo.gain", photo.gain, 0.0, 100.0)?;
+            crate::photo::Photo::load(&photo.path)
+                .and_then(|p| p.erased(&photo.erase))
+                .map_err(|reason| ScenarioError::Invalid {
+                    field: check.path("background_photo"),
+                    reason,
+                })?;
+        }
         check.finite("camera_rotation_deg", self.camera_rotation_deg)
+    }
+
+    /// Takes every relative photo path from `base` (the scenario file's folder).
+    pub fn resolve_paths(&mut self, base: &Path) {
+        for profile in
+            std::iter::once(&mut self.beam_profile).chain(self.second_beam_profile.as_mut())
+        {
+            if let BeamProfile::Image { path, .. } = profile {
+                resolved(path, base);
+            }
+        }
+        if let Some(photo) = &mut self.background_photo {
+            resolved(&mut photo.path, base);
+        }
     }
 
     /// The profile of beam `k` (only the Michelson has a second beam).

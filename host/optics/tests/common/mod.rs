@@ -34,7 +34,7 @@ pub fn mean(frame: &Frame, x0: u32, x1: u32, y0: u32, y1: u32) -> f64 {
 }
 
 /// Largest absolute pixel difference between two frames over the rectangle.
-pub fn max_diff(a: &Frame, b: &Frame, x0: u32, x1: u32, y0: u32, y1: u32) -> u8 {
+pub fn max_diff(a: &Frame, b: &Frame, x0: u32, x1: u32, y0: u32, y1: u32) -> u16 {
     let mut worst = 0;
     for y in y0..y1 {
         for x in x0..x1 {

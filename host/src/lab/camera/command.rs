@@ -70,18 +70,22 @@ impl Camera for CommandCamera {
 mod tests {
     use super::*;
 
-    #[tokio::test]
-    async fn reads_what_the_command_wrote_and_explains_failures() {
-        let dir = tempfile::tempdir().unwrap();
-        let source = dir.path().join("beam.png");
-        let frame = Frame::new(2, 2, vec![0, 64, 128, 255]).unwrap();
-        std::fs::write(&source, frame.encode_png().unwrap()).unwrap();
+    /// A command camera whose command copies `frame`, written as PNG to `source`.
+    fn copying(frame: &Frame, source: &std::path::Path) -> CommandCamera {
+        std::fs::write(source, frame.encode_png().unwrap()).unwrap();
         let argv = vec![
             "cp".into(),
             source.to_string_lossy().into_owned(),
             "{output}".into(),
         ];
-        let mut camera = CommandCamera::new(argv, Duration::from_secs(5)).unwrap();
+        CommandCamera::new(argv, Duration::from_secs(5)).unwrap()
+    }
+
+    #[tokio::test]
+    async fn reads_what_the_command_wrote_and_explains_failures() {
+        let dir = tempfile::tempdir().unwrap();
+        let frame = Frame::new(16, 16, (0..=255).collect()).unwrap();
+        let mut camera = copying(&frame, &dir.path().join("beam.png"));
         assert_eq!(camera.capture().await.unwrap(), frame);
         let silent = vec!["true".into(), "{output}".into()];
         let error = CommandCamera::new(silent, Duration::from_secs(5))
@@ -102,5 +106,39 @@ mod tests {
             .await
             .unwrap_err();
         assert!(error.to_string().contains("no camera"), "{error}");
+    }
+
+    /// The strongest beam's centre in what the command camera reads from `frame`'s PNG.
+    async fn centre_through_the_camera(frame: &Frame, dir: &std::path::Path) -> [f64; 2] {
+        let source = dir.join(format!("scene-{}.png", frame.full_scale()));
+        let mut camera = copying(frame, &source);
+        let captured = camera.capture().await.unwrap();
+        assert_eq!(captured.full_scale(), frame.full_scale());
+        assert_eq!(captured.pixels(), frame.pixels());
+        let picture = crate::imaging::Picture::new(&captured);
+        crate::imaging::find_beams(&picture)[0].centre
+    }
+
+    #[tokio::test]
+    async fn one_scene_as_8_bit_16_bit_and_12_bit_in_16_files_gives_one_centre() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut centres = Vec::new();
+        for bits in [8, 16, 12] {
+            let mut params = optalign_optics::scenario::MichelsonParams::default();
+            params.noise.bits = bits;
+            let scene = optalign_optics::Michelson::new(params, [900, -700, -1200, 500]).unwrap();
+            let frame = scene.render(&[0, 0, 0, 0], 3);
+            let full_scale = [(8, 255), (12, 4095), (16, 65535)]
+                .into_iter()
+                .find(|&(b, _)| b == bits)
+                .map(|(_, full)| full)
+                .unwrap();
+            assert_eq!(frame.full_scale(), full_scale);
+            centres.push(centre_through_the_camera(&frame, dir.path()).await);
+        }
+        for centre in &centres[1..] {
+            let apart = (centre[0] - centres[0][0]).hypot(centre[1] - centres[0][1]);
+            assert!(apart < 0.5, "centres {centres:?}");
+        }
     }
 }

@@ -100,13 +100,13 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let mut camera =
             FolderCamera::new(dir.path().to_owned(), Duration::from_millis(400)).unwrap();
-        let first = Frame::new(2, 1, vec![1, 2]).unwrap();
+        let first = Frame::new(16, 16, vec![1; 256]).unwrap();
         std::fs::write(dir.path().join("0001.png"), first.encode_png().unwrap()).unwrap();
         assert_eq!(camera.capture().await.unwrap(), first);
         let error = camera.capture().await.unwrap_err().to_string();
         assert!(error.contains("no new image"), "{error}");
         tokio::time::sleep(Duration::from_millis(20)).await;
-        let second = Frame::new(2, 1, vec![3, 4]).unwrap();
+        let second = Frame::new(16, 16, vec![3; 256]).unwrap();
         std::fs::write(dir.path().join("0002.png"), second.encode_png().unwrap()).unwrap();
         assert_eq!(camera.capture().await.unwrap(), second);
         assert!(FolderCamera::new(dir.path().join("missing"), Duration::from_secs(1)).is_err());
@@ -117,7 +117,7 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let mut camera =
             FolderCamera::new(dir.path().to_owned(), Duration::from_millis(400)).unwrap();
-        let bright = image::GrayImage::from_pixel(4, 3, image::Luma([200]));
+        let bright = image::GrayImage::from_pixel(16, 16, image::Luma([200]));
         for (index, (name, format)) in [
             ("0001.tiff", image::ImageFormat::Tiff),
             ("0002.JPG", image::ImageFormat::Jpeg),
@@ -132,7 +132,7 @@ mod tests {
                 .save_with_format(dir.path().join(name), format)
                 .unwrap();
             let frame = camera.capture().await.unwrap();
-            assert_eq!((frame.width(), frame.height()), (4, 3), "{name}");
+            assert_eq!((frame.width(), frame.height()), (16, 16), "{name}");
             assert!(
                 frame.pixels().iter().all(|&p| p.abs_diff(200) <= 2),
                 "{name} (capture {index}): {:?}",

@@ -1,6 +1,8 @@
 //! The V4L2 camera (feature `v4l2`): a USB or CSI camera on Linux with auto exposure and
 //! auto gain switched off, so brightness means something, stale frames discarded after
-//! every move and optional averaging. Capture runs on a blocking thread.
+//! every move and optional averaging. Frames are read at the camera's own depth: 16-bit
+//! (`Y16 `) and 12-bit (`Y12 `, in 16-bit words) grayscale when the camera offers them,
+//! else 8-bit (`GREY`, or the luma of `YUYV`). Capture runs on a blocking thread.
 
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
@@ -15,13 +17,21 @@ use v4l::io::traits::CaptureStream;
 use v4l::video::Capture;
 use v4l::{Device, FourCC};
 
-use super::{Camera, report_saturation};
+use super::{Camera, large_enough, report_saturation};
 
 const EXPOSURE_AUTO: u32 = 0x009a_0901;
 const EXPOSURE_MANUAL: i64 = 1;
 const EXPOSURE_ABSOLUTE: u32 = 0x009a_0902;
 const AUTOGAIN: u32 = 0x0098_0912;
 const GAIN: u32 = 0x0098_0913;
+
+/// The pixel formats read, deepest first, with their full scale.
+const PIXEL_FORMATS: [(&[u8; 4], u16); 4] = [
+    (b"Y16 ", u16::MAX),
+    (b"Y12 ", 4095),
+    (b"GREY", 255),
+    (b"YUYV", 255),
+];
 
 struct Capturer {
     stream: Stream<'static>,
@@ -61,18 +71,21 @@ impl V4l2Camera {
             }
         }
         let mut format = device.format()?;
-        for fourcc in [FourCC::new(b"GREY"), FourCC::new(b"YUYV")] {
-            format.fourcc = fourcc;
+        for (fourcc, _) in PIXEL_FORMATS {
+            format.fourcc = FourCC::new(fourcc);
             if let Ok(actual) = device.set_format(&format)
-                && actual.fourcc == fourcc
+                && actual.fourcc == format.fourcc
             {
                 format = actual;
                 break;
             }
         }
-        if format.fourcc != FourCC::new(b"GREY") && format.fourcc != FourCC::new(b"YUYV") {
+        if !PIXEL_FORMATS
+            .iter()
+            .any(|(fourcc, _)| format.fourcc == FourCC::new(fourcc))
+        {
             bail!(
-                "camera {} offers neither GREY nor YUYV frames (it offers {})",
+                "camera {} offers none of Y16, Y12, GREY or YUYV frames (it offers {})",
                 path.display(),
                 format.fourcc
             );
@@ -96,14 +109,34 @@ impl V4l2Camera {
 }
 
 impl Capturer {
-    /// One frame's luminance.
-    fn grab(&mut self) -> anyhow::Result<Vec<u8>> {
+    /// The full scale of the frames read.
+    fn full_scale(&self) -> u16 {
+        PIXEL_FORMATS
+            .iter()
+            .find(|(fourcc, _)| self.fourcc == FourCC::new(fourcc))
+            .map_or(255, |&(_, full)| full)
+    }
+
+    /// One frame's luminance, in counts of the camera's depth.
+    fn grab(&mut self) -> anyhow::Result<Vec<u16>> {
+        let deep = self.full_scale() > 255;
         let (buffer, _) = self.stream.next()?;
         let pixels = (self.width * self.height) as usize;
-        let luma: Vec<u8> = if self.fourcc == FourCC::new(b"YUYV") {
-            buffer.iter().step_by(2).take(pixels).copied().collect()
+        let luma: Vec<u16> = if deep {
+            buffer
+                .chunks_exact(2)
+                .take(pixels)
+                .map(|pair| u16::from_le_bytes([pair[0], pair[1]]).min(self.full_scale()))
+                .collect()
+        } else if self.fourcc == FourCC::new(b"YUYV") {
+            buffer
+                .iter()
+                .step_by(2)
+                .take(pixels)
+                .map(|&v| u16::from(v))
+                .collect()
         } else {
-            buffer.iter().take(pixels).copied().collect()
+            buffer.iter().take(pixels).map(|&v| u16::from(v)).collect()
         };
         if luma.len() != pixels {
             bail!(
@@ -135,10 +168,16 @@ impl Camera for V4l2Camera {
                     *s += u32::from(v);
                 }
             }
-            let pixels = sum.iter().map(|s| (s / average) as u8).collect();
-            Ok(Frame::new(capturer.width, capturer.height, pixels)?)
+            let pixels = sum.iter().map(|s| (s / average) as u16).collect();
+            Ok(Frame::deep(
+                capturer.width,
+                capturer.height,
+                pixels,
+                capturer.full_scale(),
+            )?)
         })
         .await??;
+        let frame = large_enough(frame, &self.describe())?;
         report_saturation(&self.describe(), &frame);
         Ok(frame)
     }

@@ -282,6 +282,7 @@ mod tests {
         Beam {
             centre,
             uncertainty: 0.2,
+            covariance: [[0.02, 0.0], [0.0, 0.02]],
             radii: [size, size],
             angle_deg: 0.0,
             signal,

@@ -499,9 +499,9 @@ fn check_part(
 /// The brightest region of a frame: its centroid in normalised coordinates (x right, y up)
 /// and in pixels, or `None` when nothing stands out from the background.
 fn bright_spot(frame: &Frame) -> Option<([f64; 2], [f64; 2])> {
-    let pixels = frame.pixels();
+    let pixels = frame.to_8bit();
     let mut histogram = [0usize; 256];
-    for &p in pixels {
+    for &p in &pixels {
         histogram[usize::from(p)] += 1;
     }
     let mut below = 0;

@@ -33,20 +33,20 @@ pub fn scaled_size(width: u32, height: u32, max_side: u32) -> (u32, u32) {
     (shrink(width), shrink(height))
 }
 
-/// Downscales (when needed) and encodes a frame.
+/// Downscales (when needed) and encodes a frame, scaled to 8 bits.
 pub fn prepare(frame: &Frame, max_side: u32) -> Result<PreparedImage, String> {
     let (width, height) = scaled_size(frame.width(), frame.height(), max_side);
     let frame = if (width, height) == (frame.width(), frame.height()) {
         frame.clone()
     } else {
-        let source = GrayImage::from_raw(frame.width(), frame.height(), frame.pixels().to_vec())
+        let source = GrayImage::from_raw(frame.width(), frame.height(), frame.to_8bit())
             .ok_or("the frame's pixel buffer does not match its size")?;
         // Through `DynamicImage`, so the filter runs as compiled (optimised) in `image`.
         let small =
             DynamicImage::ImageLuma8(source).resize_exact(width, height, FilterType::Triangle);
         Frame::new(width, height, small.into_luma8().into_raw()).map_err(|e| e.to_string())?
     };
-    let png = frame.encode_png().map_err(|e| e.to_string())?;
+    let png = frame.encode_8bit_png().map_err(|e| e.to_string())?;
     Ok(PreparedImage {
         data_url: format!("data:image/png;base64,{}", STANDARD.encode(png)),
         width,
