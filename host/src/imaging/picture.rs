@@ -469,10 +469,12 @@ const NORMAL_POINTS: [(f64, f64); 5] = [
     (2.0, 0.9772),
 ];
 
-/// Counts of a frame's values in bins (one per value up to 12 bits): medians, trimmed means
-/// and spreads in one pass over the bins, in gray levels.
+/// Counts of a frame's values in bins (one per value up to 12 bits), with the sum of the
+/// values in each: medians, trimmed means and spreads in one pass over the bins, in gray
+/// levels.
 struct Histogram {
     counts: Vec<u32>,
+    sums: Vec<u64>,
     total: u32,
     depth: Depth,
 }
@@ -481,20 +483,27 @@ impl Histogram {
     fn new(depth: Depth) -> Self {
         Self {
             counts: vec![0; depth.bins],
+            sums: vec![0; depth.bins],
             total: 0,
             depth,
         }
     }
 
     fn add(&mut self, value: u16) {
-        self.counts[usize::from(value / self.depth.bin_counts)] += 1;
+        let bin = usize::from(value / self.depth.bin_counts);
+        self.counts[bin] += 1;
+        self.sums[bin] += u64::from(value);
         self.total += 1;
     }
 
-    /// The gray level bin `bin` stands for (its middle).
+    /// The gray level bin `bin` stands for: the mean of its values (its middle when empty).
     fn level(&self, bin: usize) -> f64 {
         let counts = self.depth.bin_counts;
-        (bin as f64 * f64::from(counts) + f64::from(counts - 1) / 2.0) * self.depth.level_per_count
+        let value = match self.counts[bin] {
+            0 => bin as f64 * f64::from(counts) + f64::from(counts - 1) / 2.0,
+            n => self.sums[bin] as f64 / f64::from(n),
+        };
+        value * self.depth.level_per_count
     }
 
     /// The bin of the smallest value with at least `share` of the counts at or below it.
