@@ -1,10 +1,18 @@
-//! The two-slot journal: a write never touches the slot holding the newest good record.
+//! The record journal: a ring of slots over several erase sectors, so the flash wears
+//! evenly, and a write never touches the sector holding the newest good record.
 //!
-//! Each write goes to the other slot with the next sequence number, so a power loss in the
-//! middle of a write (a torn slot) leaves the previous record intact, and loading picks the
-//! valid slot with the newest sequence. Every write is read back; one that reads back
-//! differently fails, and the next write goes to the same slot. A record identical to the last one written is not
-//! written again, to spare the flash.
+//! Each write goes to the slot after the newest record's, with the next sequence number;
+//! loading picks the valid slot with the newest sequence. A write entering a sector erases
+//! that sector first (its slots hold the oldest records of the ring); a write to a slot
+//! of the newest record's own sector goes only into a blank slot, so a power loss in the
+//! middle of a write (a torn slot) leaves the newest record intact. When the next slot is
+//! not blank (a torn or failed write left something there), the write skips to the start
+//! of the next sector. Every write is read back; one that reads back differently fails,
+//! and the newest record stays where it was. A record identical to the last one written
+//! is not written again, to spare the flash.
+//!
+//! Wear: each sector is erased once per round of the ring, that is once per
+//! `S::SLOTS` writes (docs/reliability.md has the board's lifetime in moves).
 
 use crate::record::{self, InvalidSlot, RECORD_LEN, Record};
 use crate::storage::{Storage, StorageError};
@@ -20,14 +28,24 @@ pub struct Journal {
 }
 
 impl Journal {
-    /// The newest valid record; `Ok(None)` when both slots are blank (a board that never
+    /// The newest valid record; `Ok(None)` when every slot is blank (a board that never
     /// saved anything).
     pub fn load<S: Storage>(storage: &mut S) -> (Self, Result<Option<Record>, Corrupt>) {
-        const { assert!(S::SLOT_SIZE >= RECORD_LEN, "storage slots are too small") };
+        const {
+            assert!(S::SLOT_SIZE >= RECORD_LEN, "storage slots are too small");
+            assert!(
+                S::SLOTS_PER_SECTOR > 0 && S::SLOTS.is_multiple_of(S::SLOTS_PER_SECTOR),
+                "slots come in whole sectors"
+            );
+            assert!(
+                S::SLOTS / S::SLOTS_PER_SECTOR >= 3,
+                "the ring needs three sectors"
+            );
+        };
         let mut newest: Option<(u8, u32, Record)> = None;
         let mut blank = true;
         let mut buf = [0u8; RECORD_LEN];
-        for slot in 0..2u8 {
+        for slot in 0..S::SLOTS {
             let decoded = match storage.read(slot, &mut buf) {
                 Ok(()) => record::decode(&buf),
                 Err(_) => Err(InvalidSlot),
@@ -58,32 +76,54 @@ impl Journal {
         (journal, loaded)
     }
 
-    /// Writes `record` to the slot not holding the newest record.
+    /// Writes `record` to the slot after the newest record's.
     pub fn save<S: Storage>(
         &mut self,
         storage: &mut S,
         record: &Record,
     ) -> Result<(), StorageError> {
-        let (slot, sequence) = match self.newest {
-            Some((slot, sequence)) => (1 - slot, sequence.wrapping_add(1)),
-            None => (0, 0),
-        };
+        let sequence = self
+            .newest
+            .map_or(0, |(_, sequence)| sequence.wrapping_add(1));
         let mut buf = [0u8; RECORD_LEN];
         let payload = record::encode(record, sequence, &mut buf).ok_or(StorageError::Encoding)?;
         if self.last_payload == Some(payload) {
             return Ok(());
         }
-        storage.erase(slot)?;
+        let (slot, erase) = self.next_slot(storage)?;
+        if erase {
+            storage.erase(slot)?;
+        }
         storage.write(slot, &buf)?;
         let mut check = [0u8; RECORD_LEN];
         storage.read(slot, &mut check)?;
         if check != buf {
-            // The slot is not the newest: the last good record stays where it was.
+            // Not the newest: the last good record stays where it was.
             return Err(StorageError::ReadBack);
         }
         self.newest = Some((slot, sequence));
         self.last_payload = Some(payload);
         Ok(())
+    }
+
+    /// The slot the next record goes to, and whether its sector must be erased first.
+    fn next_slot<S: Storage>(&self, storage: &mut S) -> Result<(u8, bool), StorageError> {
+        let per_sector = S::SLOTS_PER_SECTOR;
+        let Some((newest, _)) = self.newest else {
+            return Ok((0, true));
+        };
+        let next = (newest + 1) % S::SLOTS;
+        if next.is_multiple_of(per_sector) {
+            return Ok((next, true));
+        }
+        let mut bytes = [0u8; RECORD_LEN];
+        storage.read(next, &mut bytes)?;
+        if bytes.iter().all(|&b| b == 0xFF) {
+            Ok((next, false))
+        } else {
+            // Something was left in the newest record's sector: start the next sector.
+            Ok(((next - next % per_sector + per_sector) % S::SLOTS, true))
+        }
     }
 }
 
@@ -104,19 +144,35 @@ mod tests {
         }
     }
 
+    /// The slot holding the record with `key`.
+    fn slot_of(storage: &RamStorage, key: u8) -> Option<usize> {
+        (0..usize::from(RamStorage::SLOTS)).find(|&slot| {
+            let bytes = &storage.as_bytes()[slot * RECORD_LEN..][..RECORD_LEN];
+            record::decode(bytes)
+                .is_ok_and(|found| found.is_some_and(|(_, found)| found.key == Some([key; 32])))
+        })
+    }
+
     #[test]
-    fn newest_of_two_wins_and_writes_alternate() {
+    fn the_newest_wins_and_writes_go_round_the_ring() {
         let mut storage = RamStorage::new();
         let (mut journal, loaded) = Journal::load(&mut storage);
         assert_eq!(loaded, Ok(None));
-        for key in 1..=5 {
+        let slots = RamStorage::SLOTS;
+        for key in 1..=2 * slots + 1 {
             journal.save(&mut storage, &record(key)).unwrap();
             assert_eq!(Journal::load(&mut storage).1, Ok(Some(record(key))));
+            // One slot after the other, round and round.
+            assert_eq!(slot_of(&storage, key), Some(usize::from((key - 1) % slots)));
         }
-        assert_eq!(storage.writes(), 5);
+        let writes = u32::from(2 * slots + 1);
+        assert_eq!(storage.writes(), writes);
+        // Each sector erased once per round (the first round erases them all as well).
+        let sectors = u32::from(slots / RamStorage::SLOTS_PER_SECTOR);
+        assert_eq!(storage.erases(), 2 * sectors + 1);
         // Unchanged: not written again.
-        journal.save(&mut storage, &record(5)).unwrap();
-        assert_eq!(storage.writes(), 5);
+        journal.save(&mut storage, &record(2 * slots + 1)).unwrap();
+        assert_eq!(storage.writes(), writes);
     }
 
     #[test]
@@ -136,9 +192,11 @@ mod tests {
             let mut storage = storage.power_cycled();
             let (mut journal, loaded) = Journal::load(&mut storage);
             assert_eq!(loaded, Ok(Some(record(2))), "torn after {keep} bytes");
-            // The next write goes over the torn slot, not the good one.
+            // The next write lands elsewhere, and the good record stays until it did.
+            let good = slot_of(&storage, 2);
             journal.save(&mut storage, &record(4)).unwrap();
             assert_eq!(Journal::load(&mut storage).1, Ok(Some(record(4))));
+            assert_eq!(slot_of(&storage, 2), good, "record 2 untouched");
         }
     }
 

@@ -1,10 +1,10 @@
 //! Persistent storage of fixed-size slots and the motion mark, and an in-memory
 //! implementation.
 //!
-//! The record journal (see [`crate::record`]) uses two slots of at least
-//! [`RECORD_LEN`] bytes each. On flash a slot is one erase
-//! sector; `write` programs into an erased slot. The motion mark (see [`crate::mark`])
-//! lives apart from the slots, where it can be set without holding up a move.
+//! The record journal (`crate::slots`) uses a ring of slots of at least [`RECORD_LEN`]
+//! bytes each, grouped in erase sectors: on flash `erase` clears a whole sector, and
+//! `write` programs into an erased slot. The motion mark (see [`crate::mark`]) lives apart
+//! from the slots, where it can be set without holding up a move.
 
 use crate::mark::MARK_LEN;
 use crate::record::RECORD_LEN;
@@ -38,13 +38,18 @@ impl StorageError {
     }
 }
 
-/// Two (or more) fixed-size slots of non-volatile memory.
+/// Fixed-size slots of non-volatile memory, in erase sectors of
+/// [`SLOTS_PER_SECTOR`](Self::SLOTS_PER_SECTOR) slots.
 pub trait Storage {
     /// Bytes per slot.
     const SLOT_SIZE: usize;
+    /// Slots in all (a multiple of [`Self::SLOTS_PER_SECTOR`], at least three sectors).
+    const SLOTS: u8;
+    /// Slots erased together.
+    const SLOTS_PER_SECTOR: u8;
     /// Reads the first `buf.len()` bytes of `slot`.
     fn read(&mut self, slot: u8, buf: &mut [u8]) -> Result<(), StorageError>;
-    /// Erases `slot` (to 0xFF).
+    /// Erases the sector holding `slot` (every slot of it, to 0xFF).
     fn erase(&mut self, slot: u8) -> Result<(), StorageError>;
     /// Programs `data` at the start of the erased `slot`.
     fn write(&mut self, slot: u8, data: &[u8]) -> Result<(), StorageError>;
@@ -70,21 +75,27 @@ pub trait Storage {
     }
 }
 
-/// Two slots and the mark in RAM: for tests and the simulated peer, which saves
-/// [`Self::as_bytes`] to a file and restores it with [`Self::from_bytes`]. It can fail on
-/// demand, store writes wrongly while reporting success, and simulate a power loss in the
-/// middle of a write.
+/// Slots and the mark in RAM, three sectors of two slots: for tests and the simulated
+/// peer, which saves [`Self::as_bytes`] to a file and restores it with
+/// [`Self::from_bytes`]. It can fail on demand, store writes wrongly while reporting
+/// success, and simulate a power loss in the middle of a write.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct RamStorage {
-    /// Slot 0, slot 1, then the mark.
-    bytes: [u8; 2 * RECORD_LEN + MARK_LEN],
+    /// The slots in order, then the mark.
+    bytes: [u8; RAM_SLOTS * RECORD_LEN + MARK_LEN],
     tear_after: Option<usize>,
     /// Power failed in a torn write: nothing is stored any more.
     dead: bool,
     failing: bool,
     corrupting: bool,
     writes: u32,
+    erases: u32,
 }
+
+/// [`RamStorage`]'s slots.
+const RAM_SLOTS: usize = 6;
+/// Where [`RamStorage`] keeps the mark.
+const MARK_AT: usize = RAM_SLOTS * RECORD_LEN;
 
 impl Default for RamStorage {
     fn default() -> Self {
@@ -93,15 +104,16 @@ impl Default for RamStorage {
 }
 
 impl RamStorage {
-    /// Both slots erased, as on a fresh board.
+    /// Every slot erased, as on a fresh board.
     pub fn new() -> Self {
         Self {
-            bytes: [0xFF; 2 * RECORD_LEN + MARK_LEN],
+            bytes: [0xFF; RAM_SLOTS * RECORD_LEN + MARK_LEN],
             tear_after: None,
             dead: false,
             failing: false,
             corrupting: false,
             writes: 0,
+            erases: 0,
         }
     }
 
@@ -120,7 +132,7 @@ impl RamStorage {
         Self::from_bytes(self.as_bytes())
     }
 
-    /// The raw contents of both slots and the mark.
+    /// The raw contents of the slots and the mark.
     pub fn as_bytes(&self) -> &[u8] {
         &self.bytes
     }
@@ -158,6 +170,11 @@ impl RamStorage {
         self.writes
     }
 
+    /// Sector erases so far.
+    pub fn erases(&self) -> u32 {
+        self.erases
+    }
+
     fn slot(&mut self, slot: u8) -> Result<&mut [u8], StorageError> {
         let start = usize::from(slot) * RECORD_LEN;
         self.bytes
@@ -168,6 +185,8 @@ impl RamStorage {
 
 impl Storage for RamStorage {
     const SLOT_SIZE: usize = RECORD_LEN;
+    const SLOTS: u8 = RAM_SLOTS as u8;
+    const SLOTS_PER_SECTOR: u8 = 2;
 
     fn read(&mut self, slot: u8, buf: &mut [u8]) -> Result<(), StorageError> {
         let src = self
@@ -182,9 +201,13 @@ impl Storage for RamStorage {
         if self.failing {
             return Err(StorageError::Device);
         }
-        if !self.dead {
-            self.slot(slot)?.fill(0xFF);
+        let first = slot - slot % Self::SLOTS_PER_SECTOR;
+        for slot in first..first + Self::SLOTS_PER_SECTOR {
+            if !self.dead {
+                self.slot(slot)?.fill(0xFF);
+            }
         }
+        self.erases += 1;
         Ok(())
     }
 
@@ -213,7 +236,7 @@ impl Storage for RamStorage {
 
     fn read_mark(&mut self) -> Result<[u8; MARK_LEN], StorageError> {
         let mut mark = [0xFF; MARK_LEN];
-        mark.copy_from_slice(&self.bytes[2 * RECORD_LEN..]);
+        mark.copy_from_slice(&self.bytes[MARK_AT..]);
         Ok(mark)
     }
 
@@ -222,7 +245,7 @@ impl Storage for RamStorage {
             return Err(StorageError::Device);
         }
         if !self.dead {
-            self.bytes[2 * RECORD_LEN..].copy_from_slice(mark);
+            self.bytes[MARK_AT..].copy_from_slice(mark);
         }
         Ok(())
     }

@@ -23,8 +23,15 @@ use crate::error::ErrorCode;
 use crate::limits::{CRC_LEN, MAX_FRAME, MAX_PAYLOAD};
 use crate::seal::{Accepted, Inbound, SEAL_LEN, Sealer};
 
-/// CRC-32C, slice-by-16 (a 16 KiB table in flash; several times faster than byte-wise).
-const CRC32C: Crc<u32, Table<16>> = Crc::<u32, Table<16>>::new(&CRC_32_ISCSI);
+/// CRC-32C. On a host, slice-by-16: a 16 KiB table, several times faster than byte-wise.
+/// On a microcontroller (no OS), byte-wise with a 1 KiB table: the table is read on every
+/// frame and lives in flash, and slice-by-16's would fill the RP2040's and RP2350's whole
+/// 16 KiB XIP cache, evicting the motion code.
+#[cfg(not(target_os = "none"))]
+type CrcTable = Table<16>;
+#[cfg(target_os = "none")]
+type CrcTable = Table<1>;
+const CRC32C: Crc<u32, CrcTable> = Crc::<u32, CrcTable>::new(&CRC_32_ISCSI);
 
 /// Why a frame could not be produced or read.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

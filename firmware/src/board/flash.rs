@@ -1,25 +1,33 @@
 //! The persisted record in flash, written behind the core's back when no step can suffer.
 //!
-//! The core keeps configuration, key, Wi-Fi credentials and axis positions in its
-//! two-slot record and writes it through [`Storage`] when motion stops (and on explicit
-//! saves). Erasing a 4 KiB flash sector takes 45 ms (400 ms at worst) with interrupts
-//! off and the flash unreadable, long enough to starve the step back-ends; so
-//! [`FlashStorage`] keeps both slots in RAM, and [`writer`] copies a changed slot to flash
-//! once every axis is idle (no move running or waiting, every queued pin change made).
-//! An explicit save (`SaveConfig`, `SetKey`, ...) does not wait for it: the core, with
-//! every axis idle, calls [`Storage::commit`], which writes to flash at once and answers
-//! only after the read-back (or fails when pin changes are still being played out).
-//! A slot is written whole (erase, program, read back), in the order the core wrote them,
-//! so the journal's guarantee holds on flash: a power cut during a write leaves the other
-//! slot's record intact. A write that fails is retried and counted ([`FAILED_WRITES`],
-//! reported in `Status`); the status LED shows the fault.
+//! The core keeps configuration, key, Wi-Fi credentials and axis positions in its record
+//! journal, a ring of [`SLOTS`] 1 KiB slots over [`SECTORS`] 4 KiB sectors (`crate::slots`),
+//! and writes it through [`Storage`] when motion stops (and on explicit saves). Erasing a
+//! sector takes 45 ms (400 ms at worst) with interrupts off and the flash unreadable, long
+//! enough to starve the step back-ends; so [`FlashStorage`] keeps the sector being
+//! written in RAM (what the core erased and wrote of it), and [`writer`] copies it to
+//! flash once every axis is idle (no move running or waiting, every queued pin change
+//! made). An explicit save (`SaveConfig`, `SetKey`, ...) does not wait for it: the core,
+//! with every axis idle, calls [`Storage::commit`], which writes to flash at once and
+//! answers only after the read-back (or fails when pin changes are still being played
+//! out). The sector is written as the core left it (erase if it erased it, then program
+//! the slots it wrote, then read them back), so the journal's guarantee holds on flash:
+//! a power cut during a write leaves the newest record before it intact. A write that
+//! fails is retried and counted ([`FAILED_WRITES`], reported in `Status`); the status LED
+//! shows the fault.
+//!
+//! Should the core move on to the next sector before the last one reached the flash (a
+//! save while axes move, then another that fills the sector), the last one's writes are
+//! dropped: they hold only records older than the new one, and the flash keeps what it
+//! had, a consistent older state. The new sector is never the one holding the newest
+//! record on flash (the ring has more than two sectors).
 //!
 //! The motion mark lives in the watchdog's scratch registers ([`super::scratch`]). A mark
 //! naming more axes is stored at once; one naming fewer (the record now holds their end
-//! positions) is held back until the changed slots are in flash, and until then the
+//! positions) is held back until the written slots are in flash, and until then the
 //! registers name both marks' axes.
 //!
-//! Layout: slot 0 in the sector at [`STORAGE_OFFSET`], slot 1 in the next one (the
+//! Layout: the ring starts at [`STORAGE_OFFSET`] and runs to the end of flash (the
 //! `STORAGE` region of the chip's memory map, which the program is never linked into).
 
 use embassy_rp::flash::{Blocking, ERASE_SIZE, Flash, PAGE_SIZE};
@@ -38,64 +46,93 @@ use crate::mark::{self, MARK_LEN};
 use crate::record::RECORD_LEN;
 use crate::storage::{Storage, StorageError};
 
-const SLOTS: u8 = 2;
-/// Where the two slots start: the last sectors of the board's flash (an offset into
-/// flash, as the `STORAGE` region of the chip's memory map).
-pub const STORAGE_OFFSET: u32 = (FLASH_SIZE - SLOTS as usize * ERASE_SIZE) as u32;
+/// Sectors in the ring: 240 KiB at the end of flash.
+pub const SECTORS: usize = 60;
+/// Slots in a sector.
+const PER_SECTOR: usize = ERASE_SIZE / RECORD_LEN;
+/// Slots in the ring.
+pub const SLOTS: usize = SECTORS * PER_SECTOR;
+/// Where the ring starts: the last sectors of the board's flash (an offset into flash, as
+/// the `STORAGE` region of the chip's memory map).
+pub const STORAGE_OFFSET: u32 = (FLASH_SIZE - SECTORS * ERASE_SIZE) as u32;
 
-const _: () = assert!(RECORD_LEN <= ERASE_SIZE && RECORD_LEN.is_multiple_of(PAGE_SIZE));
+const _: () =
+    assert!(RECORD_LEN.is_multiple_of(PAGE_SIZE) && ERASE_SIZE.is_multiple_of(RECORD_LEN));
+const _: () = assert!(SLOTS <= u8::MAX as usize);
 
 pub type BoardFlash = Flash<'static, FLASH, Blocking, FLASH_SIZE>;
 
 /// Record writes that failed on flash since start-up.
 pub static FAILED_WRITES: AtomicU32 = AtomicU32::new(0);
 
-/// Raised when a slot changed in RAM.
+/// Raised when the sector in RAM changed.
 static CHANGED: Signal<CriticalSectionRawMutex, ()> = Signal::new();
 
-/// Both slots in RAM, mirrored to flash by [`writer`] or [`Storage::commit`].
+/// The sector the core is writing, as it will be on flash.
+struct OpenSector {
+    sector: usize,
+    image: [u8; ERASE_SIZE],
+    /// The core erased it: erase it on flash before programming.
+    erase: bool,
+    /// Slots the core wrote since the last flush.
+    written: [bool; PER_SECTOR],
+}
+
+/// The ring on flash, with the sector being written in RAM until [`writer`] or
+/// [`Storage::commit`] copies it to flash.
 pub struct FlashStorage {
     flash: BoardFlash,
-    slots: [[u8; RECORD_LEN]; SLOTS as usize],
-    dirty: [bool; SLOTS as usize],
-    /// A mark naming fewer axes, stored once the dirty slots are in flash.
+    open: Option<OpenSector>,
+    /// A mark naming fewer axes, stored once the written slots are in flash.
     held_mark: Option<[u8; MARK_LEN]>,
 }
 
 impl FlashStorage {
-    /// Both slots as they are in flash (erased if unreadable).
-    pub fn load(mut flash: BoardFlash) -> Self {
-        let mut slots = [[0xFF; RECORD_LEN]; SLOTS as usize];
-        for (slot, bytes) in (0u8..).zip(slots.iter_mut()) {
-            if flash.blocking_read(offset(slot), bytes).is_err() {
-                warn!("flash: slot {} unreadable", slot);
-                bytes.fill(0xFF);
-            }
-        }
+    /// The ring on `flash`, nothing written yet.
+    pub fn new(flash: BoardFlash) -> Self {
         Self {
             flash,
-            slots,
-            dirty: [false; SLOTS as usize],
+            open: None,
             held_mark: None,
         }
     }
 
-    fn slot(&mut self, slot: u8) -> Result<&mut [u8; RECORD_LEN], StorageError> {
-        self.slots
-            .get_mut(usize::from(slot))
-            .ok_or(StorageError::OutOfRange)
-    }
-
-    fn touch(&mut self, slot: u8) {
-        if let Some(dirty) = self.dirty.get_mut(usize::from(slot)) {
-            *dirty = true;
-            CHANGED.signal(());
+    /// The open sector for `slot`, opened as it is on flash (`erased`: as erased) when
+    /// another one, or none, was open.
+    fn open(&mut self, slot: u8, erased: bool) -> Result<&mut OpenSector, StorageError> {
+        let slot = usize::from(slot);
+        if slot >= SLOTS {
+            return Err(StorageError::OutOfRange);
         }
+        let sector = slot / PER_SECTOR;
+        let reuse = self.open.as_ref().is_some_and(|open| open.sector == sector);
+        if !reuse {
+            if self.open.as_ref().is_some_and(OpenSector::unsaved) {
+                warn!("flash: sector superseded before it was written");
+            }
+            let mut image = [0xFF; ERASE_SIZE];
+            if !erased
+                && self
+                    .flash
+                    .blocking_read(sector_offset(sector), &mut image)
+                    .is_err()
+            {
+                return Err(StorageError::Device);
+            }
+            self.open = Some(OpenSector {
+                sector,
+                image,
+                erase: false,
+                written: [false; PER_SECTOR],
+            });
+        }
+        self.open.as_mut().ok_or(StorageError::Device)
     }
 
-    /// Writes every changed slot to flash, reading each back; a failure is counted.
+    /// Writes the open sector to flash as the core left it, reading the slots back; a
+    /// failure is counted.
     fn flush(&mut self) -> Result<(), StorageError> {
-        let result = self.write_dirty();
+        let result = self.write_open();
         if let Err(error) = result {
             FAILED_WRITES.fetch_add(1, Ordering::Relaxed);
             warn!("flash: record write failed: {}", error);
@@ -106,26 +143,28 @@ impl FlashStorage {
         })
     }
 
-    fn write_dirty(&mut self) -> Result<(), embassy_rp::flash::Error> {
+    fn write_open(&mut self) -> Result<(), embassy_rp::flash::Error> {
         let flash = &mut self.flash;
-        for slot in 0..SLOTS {
-            let index = usize::from(slot);
-            if !self.dirty.get(index).copied().unwrap_or(false) {
-                continue;
+        if let Some(open) = self.open.as_mut().filter(|open| open.unsaved()) {
+            let at = sector_offset(open.sector);
+            if open.erase {
+                flash.blocking_erase(at, at + ERASE_SIZE as u32)?;
+                open.erase = false;
             }
-            let Some(bytes) = self.slots.get(index) else {
-                continue;
-            };
-            let at = offset(slot);
-            flash.blocking_erase(at, at + ERASE_SIZE as u32)?;
-            flash.blocking_write(at, bytes)?;
-            let mut check = [0u8; RECORD_LEN];
-            flash.blocking_read(at, &mut check)?;
-            if check != *bytes {
-                return Err(embassy_rp::flash::Error::Other);
-            }
-            if let Some(dirty) = self.dirty.get_mut(index) {
-                *dirty = false;
+            for (index, slot) in open.image.chunks(RECORD_LEN).enumerate() {
+                if !open.written.get(index).copied().unwrap_or(false) {
+                    continue;
+                }
+                let slot_at = at + (index * RECORD_LEN) as u32;
+                flash.blocking_write(slot_at, slot)?;
+                let mut check = [0u8; RECORD_LEN];
+                flash.blocking_read(slot_at, &mut check)?;
+                if check != slot {
+                    return Err(embassy_rp::flash::Error::Other);
+                }
+                if let Some(written) = open.written.get_mut(index) {
+                    *written = false;
+                }
             }
         }
         if let Some(mark) = self.held_mark.take() {
@@ -135,24 +174,58 @@ impl FlashStorage {
     }
 }
 
+impl OpenSector {
+    fn unsaved(&self) -> bool {
+        self.erase || self.written.iter().any(|&written| written)
+    }
+
+    fn slot(&mut self, slot: u8) -> Result<&mut [u8], StorageError> {
+        let start = usize::from(slot) % PER_SECTOR * RECORD_LEN;
+        self.image
+            .get_mut(start..start + RECORD_LEN)
+            .ok_or(StorageError::OutOfRange)
+    }
+}
+
 impl Storage for FlashStorage {
     const SLOT_SIZE: usize = RECORD_LEN;
+    const SLOTS: u8 = SLOTS as u8;
+    const SLOTS_PER_SECTOR: u8 = PER_SECTOR as u8;
 
     fn read(&mut self, slot: u8, buf: &mut [u8]) -> Result<(), StorageError> {
-        let source = self.slot(slot)?;
-        let source = source.get(..buf.len()).ok_or(StorageError::OutOfRange)?;
-        buf.copy_from_slice(source);
+        let index = usize::from(slot);
+        if index >= SLOTS || buf.len() > RECORD_LEN {
+            return Err(StorageError::OutOfRange);
+        }
+        match self
+            .open
+            .as_mut()
+            .filter(|open| open.sector == index / PER_SECTOR)
+        {
+            Some(open) => buf.copy_from_slice(&open.slot(slot)?[..buf.len()]),
+            None => {
+                let at =
+                    sector_offset(index / PER_SECTOR) + (index % PER_SECTOR * RECORD_LEN) as u32;
+                self.flash
+                    .blocking_read(at, buf)
+                    .map_err(|_| StorageError::Device)?;
+            }
+        }
         Ok(())
     }
 
     fn erase(&mut self, slot: u8) -> Result<(), StorageError> {
-        self.slot(slot)?.fill(0xFF);
-        self.touch(slot);
+        let open = self.open(slot, true)?;
+        open.image.fill(0xFF);
+        open.erase = true;
+        open.written = [false; PER_SECTOR];
+        CHANGED.signal(());
         Ok(())
     }
 
     fn write(&mut self, slot: u8, data: &[u8]) -> Result<(), StorageError> {
-        let target = self.slot(slot)?;
+        let open = self.open(slot, false)?;
+        let target = open.slot(slot)?;
         let target = target
             .get_mut(..data.len())
             .ok_or(StorageError::OutOfRange)?;
@@ -160,7 +233,10 @@ impl Storage for FlashStorage {
         for (byte, &new) in target.iter_mut().zip(data) {
             *byte &= new;
         }
-        self.touch(slot);
+        if let Some(written) = open.written.get_mut(usize::from(slot) % PER_SECTOR) {
+            *written = true;
+        }
+        CHANGED.signal(());
         Ok(())
     }
 
@@ -176,7 +252,7 @@ impl Storage for FlashStorage {
     }
 
     fn unsaved(&self) -> bool {
-        self.dirty.iter().any(|&dirty| dirty)
+        self.open.as_ref().is_some_and(OpenSector::unsaved)
     }
 
     fn device_failures(&self) -> u32 {
@@ -184,7 +260,7 @@ impl Storage for FlashStorage {
     }
 
     fn write_mark(&mut self, new: &[u8; MARK_LEN]) -> Result<(), StorageError> {
-        if self.dirty.iter().any(|&dirty| dirty) {
+        if self.unsaved() {
             let held = mark::decode(&scratch::read()) | mark::decode(new);
             scratch::write(&mark::encode(held));
             self.held_mark = Some(*new);
@@ -196,8 +272,8 @@ impl Storage for FlashStorage {
     }
 }
 
-fn offset(slot: u8) -> u32 {
-    STORAGE_OFFSET + u32::from(slot) * ERASE_SIZE as u32
+fn sector_offset(sector: usize) -> u32 {
+    STORAGE_OFFSET + (sector * ERASE_SIZE) as u32
 }
 
 /// What one attempt to write the changed slots came to.

@@ -86,7 +86,7 @@ pub async fn run(spawner: Spawner) {
         warn!("no board id");
         [0; 8]
     });
-    let storage = FlashStorage::load(board_flash);
+    let storage = FlashStorage::new(board_flash);
     let info = BoardInfo {
         board: this::NAME,
         firmware_version: env!("CARGO_PKG_VERSION"),

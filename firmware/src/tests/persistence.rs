@@ -135,13 +135,24 @@ fn corrupt_records_flag_lost_positions() {
     rig.move_and_settle(&[(0, 100)]);
     rig.move_and_settle(&[(0, 200)]);
     let slot = <RamStorage as Storage>::SLOT_SIZE;
-    // The newest record is corrupt: the older one is used.
+    // The slots holding records, newest first.
     let mut storage = rig.controller.storage().clone();
-    storage.as_bytes_mut()[slot + 30] ^= 0x40;
+    let mut held: Vec<(u32, usize)> = (0..usize::from(RamStorage::SLOTS))
+        .filter_map(|at| {
+            let bytes = &storage.as_bytes()[at * slot..][..slot];
+            let (sequence, _) = crate::record::decode(bytes).ok()??;
+            Some((sequence, at))
+        })
+        .collect();
+    held.sort_unstable_by(|a, b| b.cmp(a));
+    // The newest record is corrupt: the one before it is used.
+    storage.as_bytes_mut()[held[0].1 * slot + 30] ^= 0x40;
     let mut rebooted = Rig::boot(storage.clone(), [MountModel::new(0), MountModel::new(0)], 2);
     assert_eq!(rebooted.position(0), 100);
-    // Both corrupt: defaults and POSITION_LOST on every axis, until declared.
-    storage.as_bytes_mut()[30] ^= 0x40;
+    // All corrupt: defaults and POSITION_LOST on every axis, until declared.
+    for &(_, at) in &held[1..] {
+        storage.as_bytes_mut()[at * slot + 30] ^= 0x40;
+    }
     rebooted = Rig::boot(storage, [MountModel::new(0), MountModel::new(0)], 2);
     let status = rebooted.status();
     assert!(

@@ -117,6 +117,8 @@ struct Deferred {
 
 impl Storage for Deferred {
     const SLOT_SIZE: usize = RamStorage::SLOT_SIZE;
+    const SLOTS: u8 = RamStorage::SLOTS;
+    const SLOTS_PER_SECTOR: u8 = RamStorage::SLOTS_PER_SECTOR;
 
     fn read(&mut self, slot: u8, buf: &mut [u8]) -> Result<(), StorageError> {
         self.ram.read(slot, buf)

@@ -1,29 +1,33 @@
-//! Finding the RP2040 boot loader's USB drive (RPI-RP2) among the mounted file systems.
+//! Finding a boot loader's USB drive among the mounted file systems.
 //!
 //! A board held in BOOTSEL mode shows up as a small FAT drive whose `INFO_UF2.TXT` names
-//! the boot loader (`Board-ID: RPI-RP2` on an RP2040). Copying a UF2 file onto it flashes
-//! the board, which then reboots into the new image.
+//! the boot loader (`Board-ID: RPI-RP2` on an RP2040, `Board-ID: RP2350` on an RP2350).
+//! Copying a UF2 file onto it flashes the board, which then reboots into the new image.
 
 use std::path::{Path, PathBuf};
 
 /// The file every UF2 boot loader drive holds.
 pub const INFO_FILE: &str = "INFO_UF2.TXT";
 
-/// What an RP2040's boot loader says in its info file.
-const RP2040_BOARD_ID: &str = "Board-ID: RPI-RP2";
-
-/// Mounted RP2040 boot loader drives, in the order found.
-pub fn find_rp2040_drives() -> Vec<PathBuf> {
+/// Mounted boot loader drives whose info file says `Board-ID: {board_id}`, in the order
+/// found.
+pub fn find_boot_drives(board_id: &str) -> Vec<PathBuf> {
     candidates()
         .into_iter()
-        .filter(|dir| is_rp2040_drive(dir))
+        .filter(|dir| is_boot_drive(dir, board_id))
         .collect()
 }
 
-/// Whether `dir` is the root of an RP2040 boot loader drive.
-pub fn is_rp2040_drive(dir: &Path) -> bool {
-    std::fs::read_to_string(dir.join(INFO_FILE))
-        .is_ok_and(|info| info.lines().any(|line| line.trim() == RP2040_BOARD_ID))
+/// Whether `dir` is the root of a boot loader drive whose info file says
+/// `Board-ID: {board_id}`.
+pub fn is_boot_drive(dir: &Path, board_id: &str) -> bool {
+    std::fs::read_to_string(dir.join(INFO_FILE)).is_ok_and(|info| {
+        info.lines().any(|line| {
+            line.trim()
+                .strip_prefix("Board-ID:")
+                .is_some_and(|id| id.trim() == board_id)
+        })
+    })
 }
 
 /// Mount points worth looking at: everything in the mount table (Linux), plus the usual
@@ -100,20 +104,22 @@ mod tests {
     }
 
     #[test]
-    fn only_an_rp2040_boot_drive_matches() {
+    fn only_the_chips_own_boot_drive_matches() {
         let dir = tempfile::tempdir().unwrap();
-        assert!(!is_rp2040_drive(dir.path()));
+        assert!(!is_boot_drive(dir.path(), "RPI-RP2"));
         std::fs::write(
             dir.path().join(INFO_FILE),
             "UF2 Bootloader v3.0\nModel: Raspberry Pi RP2\nBoard-ID: RPI-RP2\n",
         )
         .unwrap();
-        assert!(is_rp2040_drive(dir.path()));
+        assert!(is_boot_drive(dir.path(), "RPI-RP2"));
+        assert!(!is_boot_drive(dir.path(), "RP2350"));
         std::fs::write(
             dir.path().join(INFO_FILE),
             "UF2 Bootloader v1.0\nModel: Raspberry Pi RP2350\nBoard-ID: RP2350\n",
         )
         .unwrap();
-        assert!(!is_rp2040_drive(dir.path()));
+        assert!(!is_boot_drive(dir.path(), "RPI-RP2"));
+        assert!(is_boot_drive(dir.path(), "RP2350"));
     }
 }

@@ -1,9 +1,12 @@
-//! UF2 images for the RP2040 boot loader (the RPI-RP2 USB drive).
+//! UF2 images for the boot loaders of the RP2040 (the RPI-RP2 USB drive) and the RP2350
+//! (the RP2350 drive).
 //!
 //! A UF2 file is a sequence of 512-byte blocks, each carrying 256 bytes to be written at
-//! a 256-byte aligned flash address, tagged with the RP2040 family id so the boot ROM
+//! a 256-byte aligned flash address, tagged with the chip's family id so the boot ROM
 //! accepts it. Bytes of a 256-byte page that no segment covers are written as 0.
-//! Format: <https://github.com/microsoft/uf2>; RP2040 specifics: RP2040 datasheet 2.8.4.
+//! Format: <https://github.com/microsoft/uf2>; RP2040 specifics: RP2040 datasheet 2.8.4;
+//! RP2350: datasheet 5.5 (family ids as in pico-sdk's `boot/uf2.h` and picotool). Both
+//! chips map their flash for execution at 0x10000000.
 
 use std::collections::BTreeMap;
 
@@ -19,23 +22,25 @@ pub const MAGIC_END: u32 = 0x0AB1_6F30;
 /// Flags: the family id field is present.
 pub const FLAG_FAMILY_ID: u32 = 0x0000_2000;
 pub const RP2040_FAMILY_ID: u32 = 0xE48B_FF56;
+/// An image for the RP2350's Arm cores in secure mode (what embassy-rp builds).
+pub const RP2350_ARM_S_FAMILY_ID: u32 = 0xE48B_FF59;
 
-/// The RP2040's flash as seen by the boot loader: execute-in-place, up to 16 MiB.
+/// The flash as seen by either boot loader: execute-in-place, up to 16 MiB.
 pub const FLASH_START: u32 = 0x1000_0000;
 pub const FLASH_END: u32 = 0x1100_0000;
 
-/// Why segments cannot go into a UF2 for the RP2040 flash.
+/// Why segments cannot go into a UF2 for the flash.
 #[derive(Debug, Error, PartialEq, Eq)]
 pub enum Uf2Error {
     #[error(
-        "segment at {address:#010x}..{end:#010x} is outside the RP2040 flash \
-         ({FLASH_START:#010x}..{FLASH_END:#010x}): is this an RP2040 flash image?"
+        "segment at {address:#010x}..{end:#010x} is outside the flash \
+         ({FLASH_START:#010x}..{FLASH_END:#010x}): is this a flash image for the board?"
     )]
     OutsideFlash { address: u32, end: u64 },
 }
 
-/// Encodes `segments` as UF2 blocks for the RP2040 flash, in address order.
-pub fn encode(segments: &[Segment]) -> Result<Vec<u8>, Uf2Error> {
+/// Encodes `segments` as UF2 blocks tagged `family_id`, in address order.
+pub fn encode(segments: &[Segment], family_id: u32) -> Result<Vec<u8>, Uf2Error> {
     let mut pages: BTreeMap<u32, [u8; PAYLOAD_LEN]> = BTreeMap::new();
     for segment in segments {
         let end = u64::from(segment.address) + segment.data.len() as u64;
@@ -62,7 +67,7 @@ pub fn encode(segments: &[Segment]) -> Result<Vec<u8>, Uf2Error> {
             PAYLOAD_LEN as u32,
             number,
             count,
-            RP2040_FAMILY_ID,
+            family_id,
         ];
         for (i, word) in words.iter().enumerate() {
             block[4 * i..4 * i + 4].copy_from_slice(&word.to_le_bytes());
@@ -84,7 +89,8 @@ mod tests {
         u32::from_le_bytes(block[at..at + 4].try_into().unwrap())
     }
 
-    /// Reads UF2 blocks back into (address, payload) pairs, checking every fixed field.
+    /// Reads UF2 blocks back into (address, payload) pairs, checking every fixed field
+    /// (the family id: RP2040's).
     fn decode(uf2: &[u8]) -> Vec<(u32, Vec<u8>)> {
         assert_eq!(uf2.len() % BLOCK_LEN, 0);
         let count = uf2.len() / BLOCK_LEN;
@@ -125,7 +131,7 @@ mod tests {
             segment(0x1000_0000, vec![0xB2; 256]),
             segment(0x1000_0100 + 300, vec![0xDA; 8]),
         ];
-        let uf2 = encode(&segments).unwrap();
+        let uf2 = encode(&segments, RP2040_FAMILY_ID).unwrap();
         let blocks = decode(&uf2);
         let addresses: Vec<u32> = blocks.iter().map(|b| b.0).collect();
         assert_eq!(addresses, [0x1000_0000, 0x1000_0100, 0x1000_0200]);
@@ -163,7 +169,7 @@ mod tests {
                 mem_size: 512,
             },
         ]);
-        let uf2 = encode(&load_segments(&file).unwrap()).unwrap();
+        let uf2 = encode(&load_segments(&file).unwrap(), RP2040_FAMILY_ID).unwrap();
         let blocks = decode(&uf2);
         assert_eq!(blocks.len(), 1020usize.div_ceil(PAYLOAD_LEN));
         let mut flash = vec![0u8; blocks.len() * PAYLOAD_LEN];
@@ -176,10 +182,21 @@ mod tests {
     }
 
     #[test]
+    fn every_block_carries_the_family_id_asked_for() {
+        let segments = [segment(0x1000_0000, vec![7; 600])];
+        let uf2 = encode(&segments, RP2350_ARM_S_FAMILY_ID).unwrap();
+        assert_eq!(uf2.len(), 3 * BLOCK_LEN);
+        for block in uf2.chunks(BLOCK_LEN) {
+            assert_eq!(word(block, 8), FLAG_FAMILY_ID);
+            assert_eq!(word(block, 28), RP2350_ARM_S_FAMILY_ID);
+        }
+    }
+
+    #[test]
     fn segments_outside_flash_are_refused() {
-        let error = encode(&[segment(0x2000_0000, vec![1; 4])]).unwrap_err();
+        let error = encode(&[segment(0x2000_0000, vec![1; 4])], RP2040_FAMILY_ID).unwrap_err();
         assert!(error.to_string().contains("0x20000000"), "{error}");
-        let error = encode(&[segment(FLASH_END - 2, vec![1; 4])]).unwrap_err();
+        let error = encode(&[segment(FLASH_END - 2, vec![1; 4])], RP2040_FAMILY_ID).unwrap_err();
         assert!(matches!(error, Uf2Error::OutsideFlash { .. }));
     }
 }

@@ -228,6 +228,8 @@ impl FlashPort {
 
 impl Storage for FlashPort {
     const SLOT_SIZE: usize = RamStorage::SLOT_SIZE;
+    const SLOTS: u8 = RamStorage::SLOTS;
+    const SLOTS_PER_SECTOR: u8 = RamStorage::SLOTS_PER_SECTOR;
 
     fn read(&mut self, slot: u8, buf: &mut [u8]) -> Result<(), StorageError> {
         lock(&self.0).flash.read(slot, buf)
