@@ -9,20 +9,20 @@ use optalign_optics::Frame;
 pub fn decode_image(path: &Path) -> anyhow::Result<Frame> {
     let bytes =
         std::fs::read(path).with_context(|| format!("cannot read image {}", path.display()))?;
+    decode_image_bytes(&bytes, &path.display().to_string())
+}
+
+/// Decodes an image's bytes from `source` (a path or URL, for messages).
+pub fn decode_image_bytes(bytes: &[u8], source: &str) -> anyhow::Result<Frame> {
     anyhow::ensure!(
         !bytes.is_empty(),
-        "image {} is empty (the camera wrote nothing)",
-        path.display()
+        "image {source} is empty (the camera wrote nothing)"
     );
-    let image = image::load_from_memory(&bytes)
-        .with_context(|| format!("{} is not a PNG, JPEG or TIFF image", path.display()))?
+    let image = image::load_from_memory(bytes)
+        .with_context(|| format!("{source} is not a PNG, JPEG or TIFF image"))?
         .into_luma8();
     let (width, height) = image.dimensions();
-    anyhow::ensure!(
-        width > 0 && height > 0,
-        "image {} has no pixels",
-        path.display()
-    );
+    anyhow::ensure!(width > 0 && height > 0, "image {source} has no pixels");
     Ok(Frame::new(width, height, image.into_raw())?)
 }
 
