@@ -14,3 +14,4 @@ mod scoring;
 
 pub use rig::LabRig;
 pub use rigfile::RigFile;
+pub use scoring::{ErrorBasis, error_basis};
