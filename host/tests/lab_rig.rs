@@ -322,8 +322,10 @@ async fn response_calibration_recovers_the_true_sensitivity_within_ten_percent()
     stage_michelson(&url, offsets).await;
     let rig = rig_file(&michelson_bench(&url, seed), dir.path());
     let mut bench = LabRig::connect_unscored(rig).await.unwrap();
-    let (response, points) = calibrate_response(&mut bench, 1, 1200, 3).await.unwrap();
-    assert_eq!(points.len(), 9);
+    let scan = calibrate_response(&mut bench, 1, 1200, 3).await.unwrap();
+    assert_eq!(scan.points.len(), 9);
+    assert!(scan.doubts.is_empty(), "{:?}", scan.doubts);
+    let response = scan.response;
     let truth = scenario.michelson.mirror_1_sensitivity_px_per_step;
     let norm = truth.iter().flatten().map(|v| v * v).sum::<f64>().sqrt();
     for (row, (fitted, exact)) in response.matrix_px_per_step.iter().zip(&truth).enumerate() {
@@ -362,6 +364,7 @@ async fn backlash_calibration_recovers_the_true_dead_band_within_ten_percent() {
         report.fit
     );
     assert!(report.fit.uncertainty <= 4.0, "{:?}", report.fit);
+    assert!(report.doubts.is_empty(), "{:?}", report.doubts);
     // The axis's compensation is restored after the scan.
     let (client, axis) = bench.controller_axis(0);
     assert_eq!(

@@ -180,7 +180,10 @@ async fn a_peer_killed_mid_move_comes_back_with_the_position_lost_until_re_zeroe
     assert_eq!(report["schema"], "optalign.status/1");
     assert_eq!(report["boot"], "interrupted-move");
     assert_eq!(report["positions_lost"], serde_json::json!([0]));
-    assert_eq!(report["axes"][0]["faults"], serde_json::json!(["position-lost"]));
+    assert_eq!(
+        report["axes"][0]["faults"],
+        serde_json::json!(["position-lost"])
+    );
     assert_eq!(report["axes"][1]["faults"], serde_json::json!([]));
 
     let refused = optalign(&url, &["move", "0=100"]).await;

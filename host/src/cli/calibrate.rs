@@ -67,94 +67,137 @@ pub async fn run(args: CalibrateArgs) -> anyhow::Result<()> {
             span,
             grid,
             out,
-        } => {
-            let file = RigFile::load(&rig)?;
-            let out = out
-                .or_else(|| file.scoring.michelson_calibration.clone())
-                .unwrap_or_else(|| beside(&rig, "response-calibration.json"));
-            let mut bench = LabRig::connect(file).await?;
-            let (response, points) =
-                calibrate_response(&mut bench, mirror, span, usize::from(grid)).await?;
-            let frame = bench.capture().await?;
-            let mut calibration = ResponseCalibration::load_or_new(&out)?;
-            calibration.image_size_px = [frame.width(), frame.height()];
-            let m = response.matrix_px_per_step;
-            crate::say!(
-                "mirror {mirror}: [[{:.4}, {:.4}], [{:.4}, {:.4}]] px/step, centre ({:.1}, {:.1}) px at {:?} steps, residual {:.2} px RMS over {} images",
-                m[0][0],
-                m[0][1],
-                m[1][0],
-                m[1][1],
-                response.centre_px[0],
-                response.centre_px[1],
-                response.reference_steps,
-                response.residual_rms_px,
-                response.points
-            );
-            calibration.set(response);
-            calibration.save(&out)?;
-            let charts =
-                write_response_chart(out.parent().unwrap_or(Path::new(".")), mirror, &points)?;
-            crate::say!("wrote {} and {}", out.display(), charts[0].display());
-        }
+        } => response(&rig, mirror, span, grid, out).await,
         Calibration::Backlash {
             rig,
             axis,
             amplitude,
             step,
             write,
-        } => {
-            anyhow::ensure!(
-                amplitude / step <= 1000,
-                "--amplitude {amplitude} with --step {step} takes {} images each way; at most 1000",
-                amplitude / step
-            );
-            let file = RigFile::load(&rig)?;
-            let names = task_axis_names(file.task);
-            let index = names.iter().position(|n| *n == axis).with_context(|| {
-                format!(
-                    "--axis {axis}: not an axis of the {} task; use one of {}",
-                    file.task,
-                    names.join(", ")
-                )
-            })?;
-            let mut bench = LabRig::connect(file).await?;
-            let report = calibrate_backlash(&mut bench, index, amplitude, step).await?;
-            let fit = &report.fit;
-            crate::say!(
-                "{axis}: backlash {:.1} ± {:.1} steps (response {:.4} px/step, residual {:.2} px RMS)",
-                fit.backlash,
-                fit.uncertainty,
-                fit.gain,
-                fit.residual_rms
-            );
-            let charts =
-                write_backlash_chart(rig.parent().unwrap_or(Path::new(".")), &axis, &report)?;
-            crate::say!("chart: {}", charts[0].display());
-            let (client, controller_axis) = bench.controller_axis(index);
-            let steps = fit.backlash.round() as u16;
-            if write {
-                let mut config = client.get_config(controller_axis).await?;
-                config.backlash = steps;
-                if config.backlash_mode == BacklashMode::Off {
-                    config.backlash_mode = BacklashMode::OneSided;
-                }
-                client
-                    .command_ok(Command::SetConfig {
-                        axis: controller_axis,
-                        config,
-                    })
-                    .await?;
-                client.command_ok(Command::SaveConfig).await?;
-                crate::say!(
-                    "wrote backlash {steps} into the controller's axis {controller_axis} and saved it"
-                );
-            } else {
-                crate::say!(
-                    "to use it: rerun with --write, or `optalign config --controller URL set {controller_axis} backlash={steps} --save`"
-                );
-            }
+        } => backlash(&rig, &axis, amplitude, step, write).await,
+    }
+}
+
+/// Refuses to save a fit with doubts, saying each.
+fn refuse_doubted(doubts: &[String], what: &str) -> anyhow::Result<()> {
+    if doubts.is_empty() {
+        return Ok(());
+    }
+    for doubt in doubts {
+        crate::say!("  - {doubt}");
+    }
+    anyhow::bail!(
+        "{what} is not trusted ({} reason{} above); nothing was saved",
+        doubts.len(),
+        if doubts.len() == 1 { "" } else { "s" }
+    )
+}
+
+async fn response(
+    rig: &Path,
+    mirror: usize,
+    span: i32,
+    grid: u8,
+    out: Option<PathBuf>,
+) -> anyhow::Result<()> {
+    let file = RigFile::load(rig)?;
+    let named = file.scoring.michelson_calibration.clone();
+    let out = out
+        .or_else(|| named.clone())
+        .unwrap_or_else(|| beside(rig, "response-calibration.json"));
+    // Read (or start) the file before anything moves, so a bad file costs no scan.
+    let mut calibration = ResponseCalibration::load_or_new(&out)?;
+    let mut bench = LabRig::connect_unscored(file).await?;
+    let scan = calibrate_response(&mut bench, mirror, span, usize::from(grid)).await?;
+    let frame = bench.capture().await?;
+    let response = &scan.response;
+    let m = response.matrix_px_per_step;
+    crate::say!(
+        "mirror {mirror}: [[{:.4}, {:.4}], [{:.4}, {:.4}]] px/step, centre ({:.1}, {:.1}) px at {:?} steps, residual {:.2} px RMS over {} images",
+        m[0][0],
+        m[0][1],
+        m[1][0],
+        m[1][1],
+        response.centre_px[0],
+        response.centre_px[1],
+        response.reference_steps,
+        response.residual_rms_px,
+        response.points
+    );
+    let charts =
+        write_response_chart(out.parent().unwrap_or(Path::new(".")), mirror, &scan.points)?;
+    crate::say!("chart: {}", charts[0].display());
+    refuse_doubted(&scan.doubts, &format!("mirror {mirror}'s response"))?;
+    calibration.image_size_px = [frame.width(), frame.height()];
+    calibration.set(scan.response);
+    calibration.save(&out)?;
+    crate::say!("wrote {}", out.display());
+    if named.as_deref() != Some(out.as_path()) {
+        crate::say!(
+            "to score runs with it, name it in {}: [scoring] michelson_calibration = {:?}",
+            rig.display(),
+            out.display().to_string()
+        );
+    }
+    Ok(())
+}
+
+async fn backlash(
+    rig: &Path,
+    axis: &str,
+    amplitude: i32,
+    step: i32,
+    write: bool,
+) -> anyhow::Result<()> {
+    anyhow::ensure!(
+        amplitude / step <= 1000,
+        "--amplitude {amplitude} with --step {step} takes {} images each way; at most 1000",
+        amplitude / step
+    );
+    let file = RigFile::load(rig)?;
+    let names = task_axis_names(file.task);
+    let index = names.iter().position(|n| n == axis).with_context(|| {
+        format!(
+            "--axis {axis}: not an axis of the {} task; use one of {}",
+            file.task,
+            names.join(", ")
+        )
+    })?;
+    let mut bench = LabRig::connect_unscored(file).await?;
+    let report = calibrate_backlash(&mut bench, index, amplitude, step).await?;
+    let fit = &report.fit;
+    crate::say!(
+        "{axis}: backlash {:.1} ± {:.1} steps (response {:.4} px/step, residual {:.2} px RMS)",
+        fit.backlash,
+        fit.uncertainty,
+        fit.gain,
+        fit.residual_rms
+    );
+    let charts = write_backlash_chart(rig.parent().unwrap_or(Path::new(".")), axis, &report)?;
+    crate::say!("chart: {}", charts[0].display());
+    refuse_doubted(&report.doubts, &format!("{axis}'s backlash fit"))?;
+    let (client, controller_axis) = bench.controller_axis(index);
+    let steps = fit.backlash.round() as u16;
+    if write {
+        let mut config = client.get_config(controller_axis).await?;
+        config.backlash = steps;
+        if config.backlash_mode == BacklashMode::Off {
+            config.backlash_mode = BacklashMode::OneSided;
         }
+        client
+            .command_ok(Command::SetConfig {
+                axis: controller_axis,
+                config,
+            })
+            .await?;
+        client.command_ok(Command::SaveConfig).await?;
+        crate::say!(
+            "wrote backlash {steps} into the controller's axis {controller_axis} and saved it"
+        );
+    } else {
+        crate::say!(
+            "to use it: rerun with --write, or `optalign config --controller URL set {controller_axis} backlash={steps} --save`"
+        );
     }
     Ok(())
 }

@@ -8,7 +8,7 @@ use anyhow::Context;
 use clap::Args;
 
 use super::monitor::MonitorArgs;
-use crate::lab::{LabRig, RigFile};
+use crate::lab::{LabRig, RigFile, error_basis};
 use crate::monitor::Hub;
 use crate::policy::vlm::{self, ReasoningEffort, VlmOptions};
 use crate::policy::{PolicyOptions, TaskBrief, build_policy};
@@ -161,6 +161,7 @@ pub async fn run(args: RunArgs) -> anyhow::Result<()> {
         .out
         .unwrap_or_else(|| run_dir(&PathBuf::from("runs"), args.task, &args.policy, args.seed));
     record_scenario(&out, &scenario)?;
+    let basis = bench.as_ref().map(error_basis);
     let mut rig: Box<dyn Rig> = match bench {
         Some(bench) => Box::new(LabRig::connect(bench).await?),
         None => Box::new(SimRig::new(args.task, &scenario, args.seed, args.motors).await?),
@@ -202,20 +203,42 @@ pub async fn run(args: RunArgs) -> anyhow::Result<()> {
         }
         server.close().await;
     }
-    crate::say!(
-        "{} seed {}: {} after {} evaluations, terminal error {}",
-        summary.task,
-        summary.seed,
-        if summary.success {
-            "success"
-        } else {
-            "not aligned"
-        },
-        summary.evaluations_used,
-        summary
-            .terminal_error
-            .map_or("n/a (no light at C8)".into(), |e| format!("{e:.1}")),
-    );
+    match (&basis, &args.rig) {
+        (Some(basis), Some(rig_path)) => {
+            crate::say!(
+                "{} on {}: {} after {} evaluations; error {} ({})",
+                summary.task,
+                rig_path.display(),
+                if summary.success {
+                    "aligned"
+                } else {
+                    "not aligned"
+                },
+                summary.evaluations_used,
+                summary
+                    .terminal_error
+                    .map_or("n/a (no light at C8)".into(), |e| {
+                        format!("{e:.1} {}", basis.unit)
+                    }),
+                basis.measured_from,
+            );
+            crate::say!("aligned means {}", basis.aligned_when);
+        }
+        _ => crate::say!(
+            "{} seed {}: {} after {} evaluations, terminal error {}",
+            summary.task,
+            summary.seed,
+            if summary.success {
+                "success"
+            } else {
+                "not aligned"
+            },
+            summary.evaluations_used,
+            summary
+                .terminal_error
+                .map_or("n/a (no light at C8)".into(), |e| format!("{e:.1}")),
+        ),
+    }
     if let Some(vlm) = &vlm {
         crate::say!("model usage: {}", vlm.usage.total());
     }

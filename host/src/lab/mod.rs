@@ -1,14 +1,17 @@
 //! The lab: rig files, cameras, camera movers, the lab rig that runs tasks on a real bench,
-//! bench scoring without hidden truth, and calibration from the camera.
+//! bench scoring without hidden truth, calibration from the camera, and the rehearsal
+//! bench a simulated peer serves across processes.
 
 pub mod calibrate;
 pub mod calibration;
 pub mod camera;
 mod command;
 pub mod mover;
+pub mod rehearsal;
 pub mod rig;
 pub mod rigfile;
 mod scoring;
 
 pub use rig::LabRig;
 pub use rigfile::RigFile;
+pub use scoring::{ErrorBasis, error_basis};

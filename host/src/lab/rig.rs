@@ -10,18 +10,17 @@ use std::time::Duration;
 
 use anyhow::{Context, bail};
 use async_trait::async_trait;
-use optalign_optics::seeds::{cavity_offsets, michelson_offsets, relay_offsets};
-use optalign_optics::{Cavity, Frame, Michelson, Relay, Station};
+use optalign_optics::{Frame, Station};
 use optalign_protocol::{AxisValue, MoveOutcome};
 
-use super::camera::{Camera, CommandCamera, FolderCamera, SimCamera, SimScene, SimView};
+use super::camera::{Camera, CommandCamera, FolderCamera, HttpCamera, SimCamera, SimView};
 use super::mover::{CameraMover, CommandMover, HttpMover, ManualMover, SimMover};
+use super::rehearsal::sim_view;
 use super::rigfile::{AxisRoute, CameraSpec, MoverSpec, RigFile};
 use super::scoring::LabScorer;
 use crate::link::{AccessKey, Client, ClientOptions, Endpoint};
 use crate::peer::{SimPeer, registry};
 use crate::rig::{ControllerView, Executed, Rig, Score};
-use crate::scenario::ScenarioFile;
 use crate::task::relay::{RelayAction, axis_of};
 use crate::task::{Action, TaskKind};
 
@@ -226,7 +225,7 @@ fn sim_peers(rig: &RigFile, controllers: &[Client]) -> anyhow::Result<Vec<Arc<Si
             };
             peer.with_context(|| {
                 format!(
-                    "camera kind \"sim\" needs a simulated peer running in this process behind controller {:?} ({}); start it with `optalign run --rig` from a test or use a real camera",
+                    "camera kind \"sim\" needs a simulated peer running in this process behind controller {:?} ({}); to rehearse against `optalign peer` in another process, start it with `--scene TASK --write-rig FILE` and use the rig file it writes (camera kind \"http\")",
                     spec.name, spec.url
                 )
             })
@@ -246,6 +245,13 @@ fn open_camera(
         CameraSpec::Command { argv, timeout_s } => (
             Box::new(CommandCamera::new(
                 argv.clone(),
+                Duration::from_secs_f64(*timeout_s),
+            )?),
+            None,
+        ),
+        CameraSpec::Http { url, timeout_s } => (
+            Box::new(HttpCamera::new(
+                url.clone(),
                 Duration::from_secs_f64(*timeout_s),
             )?),
             None,
@@ -280,22 +286,7 @@ fn open_camera(
             device.display()
         ),
         CameraSpec::Sim { seed, scenario } => {
-            let scenario = ScenarioFile::load_or_default(scenario.as_deref())?;
-            let scene = match rig.task {
-                TaskKind::Michelson => SimScene::Michelson(Michelson::new(
-                    scenario.michelson.clone(),
-                    michelson_offsets(&scenario.michelson, *seed),
-                )?),
-                TaskKind::Cavity => SimScene::Cavity(Cavity::new(
-                    scenario.cavity.clone(),
-                    cavity_offsets(&scenario.cavity, *seed),
-                )?),
-                TaskKind::Relay => SimScene::Relay(Box::new(Relay::new(
-                    scenario.relay.clone(),
-                    relay_offsets(&scenario.relay, *seed)?,
-                )?)),
-            };
-            let view = Arc::new(SimView::new(scene, *seed));
+            let view = sim_view(rig.task, scenario.as_deref(), *seed)?;
             let camera =
                 SimCamera::new(view.clone(), sim_peers(rig, controllers)?, routes.to_vec());
             (Box::new(camera), Some(view))

@@ -93,6 +93,13 @@ pub enum CameraSpec {
         #[serde(default = "default_timeout")]
         timeout_s: f64,
     },
+    /// A URL that answers a GET with one image taken when asked (a network camera's
+    /// snapshot URL, or the rehearsal bench of `optalign peer --scene`).
+    Http {
+        url: String,
+        #[serde(default = "default_timeout")]
+        timeout_s: f64,
+    },
     /// The newest image file in a folder, written by the camera's own software.
     Folder {
         path: PathBuf,
@@ -323,6 +330,10 @@ impl RigFile {
                 }
                 check_timeout("camera.timeout_s", *timeout_s)?;
             }
+            CameraSpec::Http { url, timeout_s } => {
+                check_http_url("camera.url", url)?;
+                check_timeout("camera.timeout_s", *timeout_s)?;
+            }
             CameraSpec::Folder { timeout_s, .. } => check_timeout("camera.timeout_s", *timeout_s)?,
             CameraSpec::Sim { .. } => {}
         }
@@ -334,9 +345,7 @@ impl RigFile {
                 check_timeout("mover.timeout_s", *timeout_s)?;
             }
             Some(MoverSpec::Http { url, timeout_s }) => {
-                if !(url.starts_with("http://") || url.starts_with("https://")) {
-                    bail!("mover.url: must be an http:// or https:// URL, got {url:?}");
-                }
+                check_http_url("mover.url", url)?;
                 check_timeout("mover.timeout_s", *timeout_s)?;
             }
             _ => {}
@@ -372,6 +381,13 @@ impl RigFile {
             })
             .collect()
     }
+}
+
+fn check_http_url(field: &str, url: &str) -> anyhow::Result<()> {
+    if !(url.starts_with("http://") || url.starts_with("https://")) {
+        bail!("{field}: must be an http:// or https:// URL, got {url:?}");
+    }
+    Ok(())
 }
 
 fn check_timeout(field: &str, value: f64) -> anyhow::Result<()> {

@@ -19,6 +19,75 @@ use crate::task::relay::FAR_STATIONS;
 /// centre, or `None` for no localised spot (dark or speckle).
 type StationView = Option<[f64; 2]>;
 
+/// What a bench run's error is, for a reader: its unit, what it was measured from, and
+/// what "aligned" means on this bench.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ErrorBasis {
+    pub unit: &'static str,
+    pub measured_from: String,
+    pub aligned_when: String,
+}
+
+/// The basis of `rig`'s score (as [`LabScorer`] computes it).
+pub fn error_basis(rig: &RigFile) -> ErrorBasis {
+    match rig.task {
+        TaskKind::Michelson => {
+            let path = rig
+                .scoring
+                .michelson_calibration
+                .as_ref()
+                .map_or("(none named)".into(), |p| p.display().to_string());
+            let residuals = rig
+                .scoring
+                .michelson_calibration
+                .as_ref()
+                .and_then(|p| ResponseCalibration::load(p).ok())
+                .map(|c| {
+                    let r: Vec<String> = c
+                        .mirrors
+                        .iter()
+                        .map(|m| format!("{:.2}", m.residual_rms_px))
+                        .collect();
+                    format!(", fit residuals {} px RMS", r.join(" and "))
+                })
+                .unwrap_or_default();
+            ErrorBasis {
+                unit: "px",
+                measured_from: format!(
+                    "the two beams' distances from the image centre, summed, predicted from the commanded motor positions through the response calibration {path}{residuals}"
+                ),
+                aligned_when: format!(
+                    "both beam centres within {} px (summed) of the camera's centre, where they overlap and fringes appear",
+                    rig.limits.michelson.success_error_px
+                ),
+            }
+        }
+        TaskKind::Cavity => ErrorBasis {
+            unit: "motor steps",
+            measured_from: match rig.scoring.cavity_aligned {
+                Some([x, y]) => format!(
+                    "the in-coupler's distance from its hand-aligned controller positions x = {x}, y = {y} (scoring.cavity_aligned)"
+                ),
+                None => "the in-coupler's distance from its hand-aligned positions (none recorded)".into(),
+            },
+            aligned_when: format!(
+                "the in-coupler within {CAVITY_SUCCESS_STEPS} steps of the hand-aligned positions, where the secondary beam lies on the primary"
+            ),
+        },
+        TaskKind::Relay => ErrorBasis {
+            unit: "px",
+            measured_from: "the localised spot's offset from the image centre at C8, as the camera saw it after the last adjustment".into(),
+            aligned_when: format!(
+                "the beam passes all four mirrors and a localised spot is within {} px of the image centre at C8",
+                rig.limits.relay.centred_tolerance_px
+            ),
+        },
+    }
+}
+
+/// A cavity counts as aligned within this many steps of its reference (the paper's rule).
+const CAVITY_SUCCESS_STEPS: f64 = 500.0;
+
 pub struct LabScorer {
     task: TaskKind,
     calibration: Option<ResponseCalibration>,
@@ -67,7 +136,7 @@ impl LabScorer {
             task: rig.task,
             calibration,
             cavity_aligned: rig.scoring.cavity_aligned,
-            cavity_success_steps: 500.0,
+            cavity_success_steps: CAVITY_SUCCESS_STEPS,
             tolerance_px: rig.limits.relay.centred_tolerance_px,
             views: [None; 8],
         }

@@ -6,15 +6,20 @@ use anyhow::{Context, bail};
 use optalign_protocol::{AxisConfig, BacklashMode, Command};
 
 use super::fit::{BacklashFit, fit_backlash};
-use crate::imaging::{Picture, find_beams, nearest};
+use super::track;
+use super::trust::{backlash_doubts, detector_sigma};
+use crate::imaging::{Picture, find_beams};
 use crate::lab::rig::LabRig;
+use crate::lab::rigfile::task_axis_names;
+use crate::rig::Rig;
 
-/// The measured loop and its fit.
+/// The measured loop, its fit, and why the fit is not to be trusted (empty when it is).
 #[derive(Clone, Debug)]
 pub struct BacklashReport {
     pub fit: BacklashFit,
     /// (commanded steps, beam position along the axis's direction of motion, px).
     pub samples: Vec<(f64, f64)>,
+    pub doubts: Vec<String>,
 }
 
 /// Commands of the loop: out to +amplitude, back to -amplitude, out again, home.
@@ -79,38 +84,63 @@ async fn scan_loop(
     amplitude: i32,
     step: i32,
 ) -> anyhow::Result<BacklashReport> {
+    let name = task_axis_names(rig.task())[axis].clone();
     let start = rig.commanded()[axis];
-    let first = find_beams(&Picture::new(&rig.capture().await?));
-    let Some(mut tracked) = first.first().copied() else {
+    let before = Picture::new(&rig.capture().await?);
+    if find_beams(&before).is_empty() {
         bail!(
             "no beam is visible in the camera image; bring the beam into view before calibrating backlash"
         );
-    };
+    }
+    // The probe goes out on the negative side and comes back, so the loop starts pressed
+    // against the positive side as the fit assumes.
+    rig.move_to(&[(axis, start - amplitude)]).await?;
+    let after = Picture::new(&rig.capture().await?);
+    rig.move_to(&[(axis, start)]).await?;
+    let probe = track::probe(&before, &after).with_context(|| {
+        format!(
+            "no beam moved when {name} moved by -{amplitude} steps (or the one that did left the view); nothing was written. Check the wiring and the rig file's [axes] map; if the dead band is wider than {amplitude} steps use a larger --amplitude"
+        )
+    })?;
+    let mut tracked = probe.from.centre;
     let mut commands = Vec::new();
     let mut positions = Vec::new();
+    let mut uncertainties = Vec::new();
     for offset in loop_commands(amplitude, step) {
         rig.move_to(&[(axis, start + offset)]).await?;
         let beams = find_beams(&Picture::new(&rig.capture().await?));
-        let beam = nearest(&beams, tracked.centre).copied().with_context(|| {
-            format!("the beam left the image at {offset:+} steps; use a smaller --amplitude")
-        })?;
-        tracked = beam;
+        let Some(beam) = probe.track(&beams, tracked).copied() else {
+            rig.move_to(&[(axis, start)]).await?;
+            bail!(
+                "the moving beam left the image (or met another beam) at {offset:+} steps; nothing was written. Use a smaller --amplitude"
+            );
+        };
+        let Some(centre) = track::measured_centre(&beam) else {
+            rig.move_to(&[(axis, start)]).await?;
+            bail!(
+                "the image border cuts the moving beam at {offset:+} steps too deeply to measure its centre; nothing was written. Bring the beam towards the image centre or use a smaller --amplitude"
+            );
+        };
+        tracked = beam.centre;
         commands.push(f64::from(offset));
-        positions.push(beam.centre);
+        positions.push(centre);
+        uncertainties.push(beam.uncertainty);
     }
     rig.move_to(&[(axis, start)]).await?;
     let along = project_on_motion(&positions);
     let fit = fit_backlash(&commands, &along, f64::from(amplitude), 1.0)
         .context("the loop did not give enough points to fit a dead band")?;
-    if fit.gain.abs() < 1e-4 {
-        bail!(
-            "the beam did not move with the axis (response {:.2e} px/step); check the axis map",
-            fit.gain
-        );
-    }
+    let doubts = backlash_doubts(
+        &fit,
+        &name,
+        f64::from(amplitude),
+        f64::from(step),
+        detector_sigma(&uncertainties),
+    );
     Ok(BacklashReport {
         fit,
         samples: commands.into_iter().zip(along).collect(),
+        doubts,
     })
 }
 

@@ -11,6 +11,11 @@ pub struct AffineFit {
     pub centre: [f64; 2],
     pub matrix: [[f64; 2]; 2],
     pub residual_rms: f64,
+    /// Points fitted.
+    pub points: usize,
+    /// The inverse of the steps' scatter matrix `Σ (s - s̄)(s - s̄)ᵀ`: times a position
+    /// variance, the covariance of each image coordinate's two slopes.
+    pub inverse_scatter: [[f64; 2]; 2],
 }
 
 /// `centre + matrix · (steps - reference)`.
@@ -32,6 +37,31 @@ impl AffineFit {
     pub fn predict(&self, steps: [f64; 2]) -> [f64; 2] {
         apply_affine(self.centre, &self.matrix, self.reference, steps)
     }
+
+    /// For position errors of `sigma_px` per coordinate, the typical length of each axis's
+    /// response (a column of the matrix, px per step) if that axis moved nothing: the
+    /// RMS length of a column of pure noise.
+    pub fn column_standard_error(&self, sigma_px: f64) -> [f64; 2] {
+        [0, 1].map(|k| sigma_px * (2.0 * self.inverse_scatter[k][k]).sqrt())
+    }
+
+    /// Ratio of the matrix's larger singular value to its smaller (infinite when singular):
+    /// how nearly the two axes move the beam along one line.
+    pub fn condition_number(&self) -> f64 {
+        let singular = nalgebra::Matrix2::new(
+            self.matrix[0][0],
+            self.matrix[0][1],
+            self.matrix[1][0],
+            self.matrix[1][1],
+        )
+        .singular_values();
+        let (large, small) = (singular.max(), singular.min());
+        if small > 0.0 {
+            large / small
+        } else {
+            f64::INFINITY
+        }
+    }
 }
 
 /// Fits the affine map; needs at least three points not on a line.
@@ -49,6 +79,12 @@ pub fn fit_affine(steps: &[[f64; 2]], positions: &[[f64; 2]]) -> Option<AffineFi
     if svd.singular_values.iter().any(|&s| s < 1e-9) {
         return None;
     }
+    let mut scatter = nalgebra::Matrix2::zeros();
+    for s in steps {
+        let d = nalgebra::Vector2::new(s[0] - reference[0], s[1] - reference[1]);
+        scatter += d * d.transpose();
+    }
+    let inverse = scatter.try_inverse()?;
     let mut coefficients = [[0.0; 3]; 2];
     let mut squared = 0.0;
     for (axis, row) in coefficients.iter_mut().enumerate() {
@@ -65,6 +101,11 @@ pub fn fit_affine(steps: &[[f64; 2]], positions: &[[f64; 2]]) -> Option<AffineFi
             [coefficients[1][1], coefficients[1][2]],
         ],
         residual_rms: (squared / n as f64).sqrt(),
+        points: n,
+        inverse_scatter: [
+            [inverse[(0, 0)], inverse[(0, 1)]],
+            [inverse[(1, 0)], inverse[(1, 1)]],
+        ],
     })
 }
 
@@ -170,6 +211,11 @@ mod tests {
         assert!((fit.matrix[0][0] - 0.17).abs() < 1e-9 && (fit.matrix[1][1] + 0.16).abs() < 1e-9);
         assert!((fit.matrix[0][1] - 0.012).abs() < 1e-9 && (fit.matrix[1][0] + 0.01).abs() < 1e-9);
         assert!(fit.residual_rms < 1e-9);
+        assert!((fit.condition_number() - 1.0).abs() < 0.2);
+        // Nine points 1000 and 800 steps apart: the slope of one coordinate on axis 1 is
+        // known to sigma / sqrt(6 * 1000^2); the column's length to sqrt(2) times that.
+        let se = fit.column_standard_error(1.0);
+        assert!((se[0] - (2.0f64 / 6e6).sqrt()).abs() < 1e-12, "{se:?}");
         assert!(
             fit_affine(&steps[..2], &positions[..2]).is_none(),
             "too few points"

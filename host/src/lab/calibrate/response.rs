@@ -6,7 +6,9 @@ use anyhow::{Context, bail};
 use serde::{Deserialize, Serialize};
 
 use super::fit::fit_affine;
-use crate::imaging::{Picture, find_beams, nearest};
+use super::track;
+use super::trust::{detector_sigma, response_doubts};
+use crate::imaging::{Picture, find_beams};
 use crate::lab::calibration::MirrorResponse;
 use crate::lab::rig::LabRig;
 use crate::lab::rigfile::task_axis_names;
@@ -34,38 +36,51 @@ pub fn mirror_axes(task: TaskKind, mirror: usize) -> anyhow::Result<[usize; 2]> 
     Ok([2 * (mirror - 1), 2 * (mirror - 1) + 1])
 }
 
+/// A response scan: the fit, the points behind it, and why it is not to be trusted (empty
+/// when it is).
+#[derive(Clone, Debug)]
+pub struct ResponseScan {
+    pub response: MirrorResponse,
+    pub points: Vec<ResponsePoint>,
+    pub doubts: Vec<String>,
+}
+
 /// Scans a `grid` x `grid` pattern of half-width `span` steps around the current position.
+/// The mirror's beam is the one that moves when its first axis moves (told by the frames'
+/// difference); beams that stay put are never followed.
 pub async fn calibrate_response(
     rig: &mut LabRig,
     mirror: usize,
     span: i32,
     grid: usize,
-) -> anyhow::Result<(MirrorResponse, Vec<ResponsePoint>)> {
+) -> anyhow::Result<ResponseScan> {
     anyhow::ensure!(grid >= 2, "--grid must be at least 2");
     anyhow::ensure!(span > 0, "--span must be a positive number of steps");
     let axes = mirror_axes(rig.task(), mirror)?;
+    let names = task_axis_names(rig.task());
     let start = rig.commanded().to_vec();
-    let first = find_beams(&Picture::new(&rig.capture().await?));
-    if first.is_empty() {
+    let before = Picture::new(&rig.capture().await?);
+    if find_beams(&before).is_empty() {
         bail!(
             "no beam is visible in the camera image; bring mirror {mirror}'s beam into view before calibrating"
         );
     }
-    // Which beam is this mirror's: the one that moves when its first axis moves.
-    let probe = span / 2;
-    rig.move_to(&[(axes[0], start[axes[0]] + probe)]).await?;
-    let moved = find_beams(&Picture::new(&rig.capture().await?));
-    let ours = moved
-        .iter()
-        .map(|b| (b, nearest(&first, b.centre).map_or(f64::INFINITY, |n| distance(n.centre, b.centre))))
-        .max_by(|a, b| a.1.total_cmp(&b.1))
-        .filter(|(_, shift)| *shift > 2.0)
-        .map(|(beam, _)| *beam)
-        .with_context(|| format!("no beam moved when mirror {mirror}'s first axis moved by {probe} steps; check the wiring and the rig file's axis map"))?;
+    let probe_steps = span / 2;
+    rig.move_to(&[(axes[0], start[axes[0]] + probe_steps)])
+        .await?;
+    let after = Picture::new(&rig.capture().await?);
+    let Some(probe) = track::probe(&before, &after) else {
+        rig.move_to(&[(axes[0], start[axes[0]])]).await?;
+        bail!(
+            "no beam moved when {} moved by {probe_steps} steps (or the one that did left the view); nothing was saved. Check the wiring and the rig file's [axes] map, or use a smaller --span",
+            names[axes[0]]
+        );
+    };
 
     let mut steps = Vec::new();
     let mut measured = Vec::new();
-    let mut last = ours;
+    let mut uncertainties = Vec::new();
+    let mut last = probe.to.centre;
     let offsets: Vec<i32> = (0..grid)
         .map(|i| -span + (2 * span * i as i32) / (grid as i32 - 1))
         .collect();
@@ -83,21 +98,44 @@ pub async fn calibrate_response(
             let beams = find_beams(&Picture::new(&rig.capture().await?));
             let prediction = fit_affine(&steps, &measured)
                 .map(|fit| fit.predict([f64::from(target[0]), f64::from(target[1])]))
-                .unwrap_or(last.centre);
-            let Some(beam) = nearest(&beams, prediction) else {
-                tracing::warn!(?target, "beam not visible at this grid point; skipped");
+                .unwrap_or(last);
+            let Some(beam) = probe.track(&beams, prediction) else {
+                tracing::warn!(
+                    ?target,
+                    "the moving beam is not visible apart from the others at this grid point; skipped"
+                );
                 continue;
             };
-            last = *beam;
+            last = beam.centre;
+            let Some(centre) = track::measured_centre(beam) else {
+                tracing::warn!(
+                    ?target,
+                    "the image border cuts the moving beam at this grid point too deeply to measure its centre; skipped"
+                );
+                continue;
+            };
             let positions = rig.task_positions();
             steps.push([positions[axes[0]], positions[axes[1]]]);
-            measured.push(beam.centre);
+            measured.push(centre);
+            uncertainties.push(beam.uncertainty);
         }
     }
     rig.move_to(&[(axes[0], start[axes[0]]), (axes[1], start[axes[1]])])
         .await?;
-    let fit = fit_affine(&steps, &measured)
-        .context("too few grid points showed the beam to fit a response; use a smaller --span")?;
+    let fit = fit_affine(&steps, &measured).with_context(|| {
+        format!(
+            "only {} of {} grid points showed the moving beam whole and apart from the others, too few to fit a response; nothing was saved. Bring the beam towards the image centre, use a smaller --span, or move the other beams away",
+            steps.len(),
+            grid * grid
+        )
+    })?;
+    let sigma = detector_sigma(&uncertainties);
+    let doubts = response_doubts(
+        &fit,
+        [&names[axes[0]], &names[axes[1]]],
+        f64::from(span),
+        sigma,
+    );
     let points = steps
         .iter()
         .zip(&measured)
@@ -107,9 +145,8 @@ pub async fn calibrate_response(
             fitted_px: fit.predict(*s),
         })
         .collect();
-    let names = task_axis_names(rig.task());
-    Ok((
-        MirrorResponse {
+    Ok(ResponseScan {
+        response: MirrorResponse {
             mirror,
             axes: [names[axes[0]].clone(), names[axes[1]].clone()],
             axis_indices: axes,
@@ -120,9 +157,6 @@ pub async fn calibrate_response(
             points: steps.len(),
         },
         points,
-    ))
-}
-
-fn distance(a: [f64; 2], b: [f64; 2]) -> f64 {
-    (a[0] - b[0]).hypot(a[1] - b[1])
+        doubts,
+    })
 }

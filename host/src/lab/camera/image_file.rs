@@ -14,21 +14,22 @@ use super::large_enough;
 pub fn decode_image(path: &Path) -> anyhow::Result<Frame> {
     let bytes =
         std::fs::read(path).with_context(|| format!("cannot read image {}", path.display()))?;
+    decode_image_bytes(&bytes, &path.display().to_string())
+}
+
+/// Decodes an image's bytes from `source` (a path or URL, for messages).
+pub fn decode_image_bytes(bytes: &[u8], source: &str) -> anyhow::Result<Frame> {
     anyhow::ensure!(
         !bytes.is_empty(),
-        "image {} is empty (the camera wrote nothing)",
-        path.display()
+        "image {source} is empty (the camera wrote nothing)"
     );
-    let frame = Frame::decode(&bytes, None).map_err(|error| match error {
+    let frame = Frame::decode(bytes, None).map_err(|error| match error {
         optalign_optics::FrameError::TooLarge { .. } => {
-            anyhow::anyhow!("image {} refused: {error}", path.display())
+            anyhow::anyhow!("image {source} refused: {error}")
         }
-        _ => anyhow::anyhow!(
-            "{} is not a PNG, JPEG or TIFF image this camera can read: {error}",
-            path.display()
-        ),
+        _ => anyhow::anyhow!("{source} is not a PNG, JPEG or TIFF image this camera can read: {error}"),
     })?;
-    large_enough(frame, &format!("image {}", path.display()))
+    large_enough(frame, &format!("image {source}"))
 }
 
 #[cfg(test)]

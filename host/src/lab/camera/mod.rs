@@ -6,6 +6,7 @@
 
 mod command;
 mod folder;
+mod http;
 mod image_file;
 mod sim;
 #[cfg(feature = "v4l2")]
@@ -16,7 +17,8 @@ use optalign_optics::Frame;
 
 pub use command::CommandCamera;
 pub use folder::FolderCamera;
-pub use image_file::decode_image;
+pub use http::HttpCamera;
+pub use image_file::{decode_image, decode_image_bytes};
 pub use sim::{SimCamera, SimScene, SimView};
 #[cfg(feature = "v4l2")]
 pub use v4l2::V4l2Camera;
