@@ -406,7 +406,12 @@ async fn a_move_whose_controller_went_silent_is_reported_as_possibly_run() {
     relay.hold.store(true, Ordering::SeqCst);
     let id = client.next_request_id();
     let command = Command::MoveBy {
-        deltas: [AxisValue { axis: 0, steps: 300 }].into_iter().collect(),
+        deltas: [AxisValue {
+            axis: 0,
+            steps: 300,
+        }]
+        .into_iter()
+        .collect(),
     };
     let error = client.run_move_with_id(id, command).await.unwrap_err();
     assert!(

@@ -63,7 +63,12 @@ pub fn run(args: BeamsArgs) -> anyhow::Result<()> {
     if !beams.is_empty() {
         crate::say!(
             "{:>3}  {:>17}  {:>26}  {:>15}  {:>6}  {:>7}  notes",
-            "#", "centre (x, y) px", "covariance xx,xy,yy px²", "radii px", "angle", "peak"
+            "#",
+            "centre (x, y) px",
+            "covariance xx,xy,yy px²",
+            "radii px",
+            "angle",
+            "peak"
         );
     }
     for (i, beam) in beams.iter().enumerate() {

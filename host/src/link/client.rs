@@ -146,9 +146,7 @@ pub enum ClientError {
         endpoint: Endpoint,
         waited: Duration,
     },
-    #[error(
-        "outcome unknown: {request} (request {id:#010x}) on controller at {endpoint}: {why}"
-    )]
+    #[error("outcome unknown: {request} (request {id:#010x}) on controller at {endpoint}: {why}")]
     OutcomeUnknown {
         endpoint: Endpoint,
         request: &'static str,
@@ -333,7 +331,8 @@ impl Client {
         command: Command,
     ) -> Result<Reply, ClientError> {
         let name = command.name();
-        let effect = command.has_effect() && !matches!(command, Command::Stop | Command::EmergencyStop);
+        let effect =
+            command.has_effect() && !matches!(command, Command::Stop | Command::EmergencyStop);
         let deadline = self.options.deadline;
         let mut sent_to = None;
         let outcome = tokio::time::timeout(

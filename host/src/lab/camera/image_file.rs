@@ -27,7 +27,9 @@ pub fn decode_image_bytes(bytes: &[u8], source: &str) -> anyhow::Result<Frame> {
         optalign_optics::FrameError::TooLarge { .. } => {
             anyhow::anyhow!("image {source} refused: {error}")
         }
-        _ => anyhow::anyhow!("{source} is not a PNG, JPEG or TIFF image this camera can read: {error}"),
+        _ => anyhow::anyhow!(
+            "{source} is not a PNG, JPEG or TIFF image this camera can read: {error}"
+        ),
     })?;
     large_enough(frame, &format!("image {source}"))
 }
