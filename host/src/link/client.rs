@@ -348,12 +348,12 @@ impl Client {
             })
         });
         match outcome {
-            // It went out and no answer came back: the controller may have run it.
+            // It went out and no answer came back: the controller may have run it. (A send
+            // that timed out keeps its own error: the controller took no more bytes.)
             Err(
                 ClientError::Timeout { .. }
                 | ClientError::Io { .. }
                 | ClientError::Connect { .. }
-                | ClientError::SendTimeout { .. }
                 | ClientError::Deadline { .. },
             ) if effect && sent_to.is_some() => Err(ClientError::OutcomeUnknown {
                 endpoint: self.endpoint.clone(),

@@ -89,7 +89,7 @@ mod tests {
 
     #[tokio::test]
     async fn reads_an_image_and_says_why_when_it_cannot() {
-        let frame = Frame::new(3, 2, vec![0, 50, 100, 150, 200, 250]).unwrap();
+        let frame = Frame::new(16, 16, (0..=255).collect()).unwrap();
         let png = frame.encode_png().unwrap();
         let base = serve(
             Router::new()
