@@ -1,7 +1,7 @@
 """The Gymnasium environments of the three alignment tasks, on the simulated rigs of
 ``optalign bench``.
 
-Observations are camera images (``uint8``, height x width; ``obs_size=(width, height)``
+Observations are camera images (``uint8``, deeper frames scaled to 8 bits, height x width; ``obs_size=(width, height)``
 shrinks them), plus the camera's station for the relay. The reward after each step is
 minus the true error (Michelson: px, cavity: motor steps, relay: px from the centre of C8,
 ``dark_error`` while no light reaches C8). An episode terminates when the agent declares

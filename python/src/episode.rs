@@ -138,7 +138,7 @@ impl Episode {
             })
             .map_err(failed)?;
         *self.lock()? = Some(live);
-        Ok(PyByteArray::new(py, image.pixels()))
+        Ok(PyByteArray::new(py, &image.to_8bit()))
     }
 
     /// An absolute command (Michelson, cavity); `done` ends the episode after it.
@@ -331,6 +331,6 @@ impl Episode {
             .image;
         live.evaluations += 1;
         live.rejections_in_row = 0;
-        Ok((Some(PyByteArray::new(py, image.pixels())), None))
+        Ok((Some(PyByteArray::new(py, &image.to_8bit())), None))
     }
 }
