@@ -119,16 +119,17 @@ impl Capturer {
 
     /// One frame's luminance, in counts of the camera's depth.
     fn grab(&mut self) -> anyhow::Result<Vec<u16>> {
-        let deep = self.full_scale() > 255;
-        let (buffer, _) = self.stream.next()?;
+        let full_scale = self.full_scale();
+        let yuyv = self.fourcc == FourCC::new(b"YUYV");
         let pixels = (self.width * self.height) as usize;
-        let luma: Vec<u16> = if deep {
+        let (buffer, _) = self.stream.next()?;
+        let luma: Vec<u16> = if full_scale > 255 {
             buffer
                 .chunks_exact(2)
                 .take(pixels)
-                .map(|pair| u16::from_le_bytes([pair[0], pair[1]]).min(self.full_scale()))
+                .map(|pair| u16::from_le_bytes([pair[0], pair[1]]).min(full_scale))
                 .collect()
-        } else if self.fourcc == FourCC::new(b"YUYV") {
+        } else if yuyv {
             buffer
                 .iter()
                 .step_by(2)
