@@ -126,6 +126,19 @@ pub async fn run_episode(
             frames,
         );
     }
+    let policy_name = policy.name();
+    let summary_of = |scores: &[Score], records: &[StepRecord], declared_done, failure| {
+        summarize(
+            task,
+            &policy_name,
+            options.seed,
+            limits,
+            scores,
+            records,
+            declared_done,
+            failure,
+        )
+    };
     let mut scores: Vec<Score> = Vec::new();
     let mut records: Vec<StepRecord> = Vec::new();
     let mut image = match rig.initial_image().await {
@@ -135,16 +148,7 @@ pub async fn run_episode(
             if let Some(transcript) = transcript.as_mut() {
                 transcript.failure(0, failure.by, &failure.reason, None)?;
             }
-            let summary = summarize(
-                task,
-                &policy.name(),
-                options.seed,
-                limits,
-                &scores,
-                &records,
-                false,
-                Some(failure),
-            );
+            let summary = summary_of(&scores, &records, false, Some(failure));
             return finish(transcript, monitor, summary);
         }
     };
@@ -298,16 +302,7 @@ pub async fn run_episode(
             reason: emergency_stop(rig, monitor, transcript.as_mut(), evaluations, &reason).await?,
         });
     }
-    let summary = summarize(
-        task,
-        &policy.name(),
-        options.seed,
-        limits,
-        &scores,
-        &records,
-        declared_done,
-        failure,
-    );
+    let summary = summary_of(&scores, &records, declared_done, failure);
     finish(transcript, monitor, summary)
 }
 
