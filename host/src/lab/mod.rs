@@ -6,6 +6,7 @@ pub mod calibrate;
 pub mod calibration;
 pub mod camera;
 mod command;
+mod http;
 pub mod mover;
 pub mod rehearsal;
 pub mod rig;

@@ -19,10 +19,7 @@ pub struct HttpCamera {
 
 impl HttpCamera {
     pub fn new(url: String, timeout: Duration) -> anyhow::Result<Self> {
-        let client = reqwest::Client::builder()
-            .timeout(timeout)
-            .build()
-            .context("cannot build the HTTP client")?;
+        let client = crate::lab::http::bounded_client(timeout)?;
         Ok(Self { url, client })
     }
 }

@@ -16,10 +16,7 @@ pub struct HttpMover {
 
 impl HttpMover {
     pub fn new(url: String, timeout: Duration) -> anyhow::Result<Self> {
-        let client = reqwest::Client::builder()
-            .timeout(timeout)
-            .build()
-            .context("cannot build the HTTP client")?;
+        let client = crate::lab::http::bounded_client(timeout)?;
         Ok(Self { url, client })
     }
 }
