@@ -101,6 +101,17 @@ pub struct Connection {
 }
 
 impl Connection {
+    /// The trusted serial link's connection (USB, UART, a pseudo-terminal), opened at
+    /// `now_us` with the standard deadlines.
+    pub fn serial(now_us: u64) -> Self {
+        Self::open(
+            LinkKind::Serial,
+            Ticket::Serial,
+            now_us,
+            Deadlines::STANDARD,
+        )
+    }
+
     /// A connection on `link` opened at `now_us` with the place `ticket` (for the serial
     /// link, [`Ticket::Serial`]).
     pub fn open(link: LinkKind, ticket: Ticket, now_us: u64, deadlines: Deadlines) -> Self {

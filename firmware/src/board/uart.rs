@@ -5,9 +5,7 @@ use embassy_rp::uart::BufferedUart;
 
 use super::link;
 use super::{SharedCore, now_us};
-use crate::admission::Ticket;
-use crate::connection::{Connection, Deadlines};
-use crate::session::LinkKind;
+use crate::connection::Connection;
 
 pub const BAUD: u32 = 115_200;
 
@@ -16,12 +14,7 @@ pub const BAUD: u32 = 115_200;
 pub async fn serve(core: &'static SharedCore, uart: BufferedUart) -> ! {
     let (mut tx, mut rx) = uart.split();
     loop {
-        let connection = Connection::open(
-            LinkKind::Serial,
-            Ticket::Serial,
-            now_us(),
-            Deadlines::STANDARD,
-        );
+        let connection = Connection::serial(now_us());
         link::serve(core, connection, &mut rx, &mut tx, None).await;
     }
 }

@@ -17,9 +17,7 @@ use static_cell::StaticCell;
 
 use super::link;
 use super::{SharedCore, now_us};
-use crate::admission::Ticket;
-use crate::connection::{Connection, Deadlines};
-use crate::session::LinkKind;
+use crate::connection::Connection;
 
 const VID: u16 = 0x2E8A;
 const PID: u16 = 0x000A;
@@ -72,12 +70,7 @@ async fn serial(core: &'static SharedCore, class: CdcAcmClass<'static, UsbDriver
     let mut tx = Packets(sender);
     loop {
         rx.wait_connection().await;
-        let connection = Connection::open(
-            LinkKind::Serial,
-            Ticket::Serial,
-            now_us(),
-            Deadlines::STANDARD,
-        );
+        let connection = Connection::serial(now_us());
         link::serve(core, connection, &mut rx, &mut tx, None).await;
     }
 }

@@ -204,12 +204,7 @@ impl SimPeer {
     where
         S: AsyncRead + AsyncWrite,
     {
-        let connection = Connection::open(
-            LinkKind::Serial,
-            Ticket::Serial,
-            self.wall_us(),
-            Deadlines::STANDARD,
-        );
+        let connection = Connection::serial(self.wall_us());
         self.serve_connection(stream, connection, None).await;
     }
 
