@@ -36,17 +36,15 @@ pub fn escape_controls(text: &str) -> Cow<'_, str> {
     if !text.chars().any(is_escaped) {
         return Cow::Borrowed(text);
     }
-    Cow::Owned(
-        text.chars()
-            .map(|c| {
-                if is_escaped(c) {
-                    c.escape_default().collect::<String>()
-                } else {
-                    c.to_string()
-                }
-            })
-            .collect(),
-    )
+    let mut escaped = String::with_capacity(text.len() + 16);
+    for c in text.chars() {
+        if is_escaped(c) {
+            escaped.extend(c.escape_default());
+        } else {
+            escaped.push(c);
+        }
+    }
+    Cow::Owned(escaped)
 }
 
 fn is_escaped(c: char) -> bool {

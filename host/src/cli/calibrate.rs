@@ -149,11 +149,6 @@ async fn backlash(
     step: i32,
     write: bool,
 ) -> anyhow::Result<()> {
-    anyhow::ensure!(
-        amplitude / step <= 1000,
-        "--amplitude {amplitude} with --step {step} takes {} images each way; at most 1000",
-        amplitude / step
-    );
     let file = RigFile::load(rig)?;
     let names = task_axis_names(file.task);
     let index = names.iter().position(|n| n == axis).with_context(|| {

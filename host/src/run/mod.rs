@@ -100,6 +100,7 @@ pub async fn run_episode(
     options: &RunOptions,
 ) -> anyhow::Result<RunSummary> {
     let task = rig.task();
+    let policy_name = policy.name();
     let budget = limits.budget(task);
     let mut state = TaskState::new(task, limits);
     let monitor = options.monitor.as_ref();
@@ -107,7 +108,7 @@ pub async fn run_episode(
         Some(dir) => Some(Transcript::create(
             dir,
             task,
-            &policy.name(),
+            &policy_name,
             options.seed,
             budget,
             monitor.cloned(),
@@ -120,13 +121,12 @@ pub async fn run_episode(
             .flatten();
         monitor.begin(
             &task.to_string(),
-            &policy.name(),
+            &policy_name,
             options.seed,
             budget,
             frames,
         );
     }
-    let policy_name = policy.name();
     let summary_of = |scores: &[Score], records: &[StepRecord], declared_done, failure| {
         summarize(
             task,
@@ -144,10 +144,8 @@ pub async fn run_episode(
     let mut image = match rig.initial_image().await {
         Ok(image) => Arc::new(image),
         Err(error) => {
-            let failure = rig_failure("the rig produced no first image", &error);
-            if let Some(transcript) = transcript.as_mut() {
-                transcript.failure(0, failure.by, &failure.reason, None)?;
-            }
+            let failed = rig_failure("the rig produced no first image", &error);
+            let failure = recorded(transcript.as_mut(), 0, failed, None)?;
             let summary = summary_of(&scores, &records, false, Some(failure));
             return finish(transcript, monitor, summary);
         }
@@ -198,14 +196,16 @@ pub async fn run_episode(
         let decision = match decided {
             Ok(decision) => decision,
             Err(error) => {
-                let reason = format!("policy failed: {}", error.message);
-                if let Some(transcript) = transcript.as_mut() {
-                    transcript.failure(evaluations, EndedBy::Policy, &reason, error.record)?;
-                }
-                failure = Some(Failure {
+                let failed = Failure {
                     by: EndedBy::Policy,
-                    reason,
-                });
+                    reason: format!("policy failed: {}", error.message),
+                };
+                failure = Some(recorded(
+                    transcript.as_mut(),
+                    evaluations,
+                    failed,
+                    error.record,
+                )?);
                 break;
             }
         };
@@ -255,11 +255,8 @@ pub async fn run_episode(
             Ok(executed) => executed,
             Err(error) => {
                 let what = format!("executing {}", decision.action.describe());
-                let rig_failed = rig_failure(&what, &error);
-                if let Some(transcript) = transcript.as_mut() {
-                    transcript.failure(evaluations, EndedBy::Rig, &rig_failed.reason, None)?;
-                }
-                failure = Some(rig_failed);
+                let failed = rig_failure(&what, &error);
+                failure = Some(recorded(transcript.as_mut(), evaluations, failed, None)?);
                 break;
             }
         };
@@ -312,6 +309,20 @@ fn rig_failure(what: &str, error: &anyhow::Error) -> Failure {
         by: EndedBy::Rig,
         reason: format!("{what}: {error:#}"),
     }
+}
+
+/// Writes `failure` (with what the failing part did, `record`) into the transcript at
+/// `evaluation`; returns it for the summary.
+fn recorded(
+    transcript: Option<&mut Transcript>,
+    evaluation: usize,
+    failure: Failure,
+    record: Option<serde_json::Value>,
+) -> anyhow::Result<Failure> {
+    if let Some(transcript) = transcript {
+        transcript.failure(evaluation, &failure, record)?;
+    }
+    Ok(failure)
 }
 
 /// Writes the closing line and summary, and tells the monitor.

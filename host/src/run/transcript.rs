@@ -11,7 +11,7 @@ use optalign_optics::Frame;
 use serde::{Deserialize, Serialize};
 use serde_json::json;
 
-use super::summary::{EndedBy, RunSummary};
+use super::summary::{Failure, RunSummary};
 use crate::monitor::RunMonitor;
 use crate::policy::Decision;
 use crate::rig::{ControllerView, Executed, Score};
@@ -189,15 +189,14 @@ impl Transcript {
     pub fn failure(
         &mut self,
         evaluation: usize,
-        by: EndedBy,
-        reason: &str,
+        failure: &Failure,
         record: Option<serde_json::Value>,
     ) -> anyhow::Result<()> {
         self.line(&json!({
             "type": "failure",
             "evaluation": evaluation,
-            "by": by,
-            "reason": reason,
+            "by": failure.by,
+            "reason": failure.reason,
             "record": record,
         }))
     }

@@ -41,6 +41,9 @@ fn loop_commands(amplitude: i32, step: i32) -> Vec<i32> {
     commands
 }
 
+/// The most images the loop takes each way (a longer scan is a typing mistake).
+const MOST_IMAGES_EACH_WAY: i64 = 1000;
+
 /// Runs the loop on task axis `axis`; compensation is switched off for the scan and the
 /// previous configuration is restored on every path.
 pub async fn calibrate_backlash(
@@ -49,9 +52,11 @@ pub async fn calibrate_backlash(
     amplitude: i32,
     step: i32,
 ) -> anyhow::Result<BacklashReport> {
+    let images = i64::from(amplitude) / i64::from(step.max(1));
     anyhow::ensure!(
-        step > 0 && amplitude >= 4 * step,
-        "--amplitude must be at least four --step"
+        step > 0 && (4..=MOST_IMAGES_EACH_WAY).contains(&images),
+        "--amplitude {amplitude} with --step {step} takes {images} images each way; \
+         from 4 to {MOST_IMAGES_EACH_WAY}: --amplitude must be at least four --step"
     );
     let (client, controller_axis) = rig.controller_axis(axis);
     let saved = client.get_config(controller_axis).await?;

@@ -457,14 +457,13 @@ impl Policy for VlmPolicy {
         loop {
             let request = self.request();
             let record = self.request_record(&request);
-            let completion = match self.backend.complete(&request).await {
+            let mut completion = match self.backend.complete(&request).await {
                 Ok(completion) => completion,
                 Err(e) => {
                     let error = PolicyError::new(format!("model request failed: {e}"));
                     return Err(unused(&exchanges, error));
                 }
             };
-            let mut completion = completion;
             let overlong = cut_overlong(&mut completion.text);
             latency_s += completion.latency_s;
             self.usage.add(&completion.usage);
