@@ -18,7 +18,8 @@ pub const FULL_SCALE_12: u16 = 4095;
 /// Full scale of a 16-bit frame.
 pub const FULL_SCALE_16: u16 = u16::MAX;
 
-/// Largest image side decoded, px.
+/// Largest image side, px: decoded from a file, or rendered from a scenario (whose per-row
+/// noise table is sized to it, so rows never repeat each other's noise).
 pub const MAX_SIDE_PX: u32 = 16384;
 /// Most pixels decoded in one image (64 megapixels: a frame's analysis takes about 10 bytes
 /// a pixel).

@@ -10,7 +10,8 @@
 
 use std::sync::OnceLock;
 
-use crate::scenario::{MAX_IMAGE_SIDE_PX, NoiseParams};
+use crate::frame::MAX_SIDE_PX;
+use crate::scenario::NoiseParams;
 
 /// Standard deviation of a sum of four independent uniform bytes.
 const BYTE_SUM_STD: f64 = 147.801_89;
@@ -41,12 +42,12 @@ pub(crate) fn scene_key(seed: u64, offsets: &[i32]) -> u64 {
 }
 
 /// The shared noise table: `TABLE_LEN` samples in units of 1/16 standard deviation, followed
-/// by a copy of its first `MAX_IMAGE_SIDE_PX` samples so any row can be read contiguously.
+/// by a copy of its first `MAX_SIDE_PX` samples so any row can be read contiguously.
 fn noise_table() -> &'static [i8] {
     static TABLE: OnceLock<Vec<i8>> = OnceLock::new();
     TABLE.get_or_init(|| {
         const LOW_BYTES: u64 = 0x00ff_00ff_00ff_00ff;
-        let mut table = Vec::with_capacity(TABLE_LEN + MAX_IMAGE_SIDE_PX as usize);
+        let mut table = Vec::with_capacity(TABLE_LEN + MAX_SIDE_PX as usize);
         for counter in 0..(TABLE_LEN / 2) as u64 {
             let h = mix64(counter.wrapping_mul(GAMMA));
             let sums = (h & LOW_BYTES) + ((h >> 8) & LOW_BYTES);
@@ -57,7 +58,7 @@ fn noise_table() -> &'static [i8] {
                 table.push((z * TABLE_STEPS_PER_STD).round() as i8);
             }
         }
-        table.extend_from_within(..MAX_IMAGE_SIDE_PX as usize);
+        table.extend_from_within(..MAX_SIDE_PX as usize);
         table
     })
 }
@@ -163,6 +164,6 @@ mod tests {
         let (sum, sum2) = values.fold((0.0, 0.0), |(s, s2), v| (s + v, s2 + v * v));
         assert!((sum / n).abs() < 0.01);
         assert!((sum2 / n - 1.0).abs() < 0.01);
-        assert_eq!(table[TABLE_LEN..], table[..MAX_IMAGE_SIDE_PX as usize]);
+        assert_eq!(table[TABLE_LEN..], table[..MAX_SIDE_PX as usize]);
     }
 }

@@ -1,9 +1,7 @@
 //! Range checks that build [`ScenarioError::Invalid`] with the field's dotted path.
 
 use super::ScenarioError;
-
-/// Largest image side accepted, in pixels (keeps per-row noise counters collision-free).
-pub(crate) const MAX_IMAGE_SIDE_PX: u32 = 16384;
+use crate::frame::MAX_SIDE_PX;
 
 /// Most pixels in one frame: 25 Mpx, above the largest machine-vision sensors in common
 /// use (20 Mpx); a run holds a few dozen bytes per pixel of working images.
@@ -74,13 +72,13 @@ impl<'a> Check<'a> {
     }
 
     /// An image's `width_px` and `height_px`: each side at least 2 and at most
-    /// [`MAX_IMAGE_SIDE_PX`], and at most [`MAX_IMAGE_PIXELS`] pixels in all.
+    /// [`MAX_SIDE_PX`], and at most [`MAX_IMAGE_PIXELS`] pixels in all.
     pub(crate) fn image_size(&self, width: u32, height: u32) -> Result<(), ScenarioError> {
         for (field, value) in [("width_px", width), ("height_px", height)] {
-            if !(2..=MAX_IMAGE_SIDE_PX).contains(&value) {
+            if !(2..=MAX_SIDE_PX).contains(&value) {
                 return Err(self.fail(
                     field,
-                    format!("must be within 2..={MAX_IMAGE_SIDE_PX}, got {value}"),
+                    format!("must be within 2..={MAX_SIDE_PX}, got {value}"),
                 ));
             }
         }

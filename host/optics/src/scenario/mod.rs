@@ -16,7 +16,6 @@ mod relay;
 pub use cavity::{
     CavityParams, GhostParams, HaloParams, PrimaryParams, RingParams, SecondaryParams,
 };
-pub(crate) use check::MAX_IMAGE_SIDE_PX;
 pub use michelson::MichelsonParams;
 pub use noise::NoiseParams;
 pub use realism::{BackgroundPhoto, BeamProfile, RealismParams, StraySpot, Texture};
