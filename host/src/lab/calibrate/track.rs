@@ -93,3 +93,43 @@ pub fn measured_centre(beam: &Beam) -> Option<[f64; 2]> {
 pub fn distance(a: [f64; 2], b: [f64; 2]) -> f64 {
     (a[0] - b[0]).hypot(a[1] - b[1])
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::imaging::synthetic::Scene;
+
+    /// A brighter beam that stays put and a dimmer one at `moving`.
+    fn picture(moving: [f64; 2]) -> Picture {
+        Picture::new(
+            &Scene::new(320, 240)
+                .background(10.0, [0.0, 0.0])
+                .gaussian([80.0, 80.0], 14.0, 200.0)
+                .gaussian(moving, 12.0, 120.0)
+                .noise(2.0, 7)
+                .frame(),
+        )
+    }
+
+    #[test]
+    fn the_moved_beam_is_found_by_the_difference_not_by_brightness() {
+        let probe = probe(&picture([200.0, 150.0]), &picture([230.0, 140.0])).unwrap();
+        assert!(
+            distance(probe.from.centre, [200.0, 150.0]) < 1.0,
+            "{probe:?}"
+        );
+        assert!(distance(probe.to.centre, [230.0, 140.0]) < 1.0, "{probe:?}");
+        assert_eq!(probe.stationary.len(), 1);
+        assert!(distance(probe.stationary[0].centre, [80.0, 80.0]) < 1.0);
+        // Tracking never follows the bright beam that stayed, even when it is nearer.
+        let later = find_beams(&picture([250.0, 120.0]));
+        let tracked = probe.track(&later, [90.0, 85.0]).unwrap();
+        assert!(distance(tracked.centre, [250.0, 120.0]) < 1.0);
+        // Nothing moved: no probe.
+        assert!(probe_of_still().is_none());
+    }
+
+    fn probe_of_still() -> Option<Probe> {
+        probe(&picture([200.0, 150.0]), &picture([200.0, 150.0]))
+    }
+}
