@@ -8,7 +8,7 @@ use std::time::{Duration, Instant};
 
 use optalign::monitor::{Access, Hub, RunMonitor, start};
 
-const BIN: &str = env!("CARGO_BIN_EXE_optalign");
+use crate::BIN;
 
 #[tokio::test]
 async fn a_monitor_with_a_token_refuses_every_request_without_it() {
@@ -293,8 +293,7 @@ async fn the_stop_endpoint_ends_a_cli_run_with_the_reason_and_a_latched_peer() {
     );
 }
 
-#[path = "browser/devtools.rs"]
-mod devtools;
+use crate::devtools;
 
 /// Headless Chromium on a simulated run: the page shows the first frame, the evaluation
 /// counter advances as the operator steps the run, and the stop button ends it with the

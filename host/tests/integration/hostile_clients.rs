@@ -6,7 +6,7 @@
 //! keyless `optalign stop --emergency` must get through within one second, checked against
 //! the peer's true shafts and coils.
 //!
-//! `cargo test -p optalign --test hostile_clients -- --nocapture` prints the figures
+//! `cargo test -p optalign --test integration hostile_clients:: -- --nocapture` prints the figures
 //! docs/reliability.md quotes.
 
 use std::net::SocketAddr;
@@ -24,7 +24,7 @@ use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::{TcpSocket, TcpStream};
 use tokio::task::JoinSet;
 
-const BIN: &str = env!("CARGO_BIN_EXE_optalign");
+use crate::BIN;
 const KEY: &str = "hostile-clients-key";
 const WITHIN: Duration = Duration::from_secs(1);
 

@@ -9,7 +9,7 @@ use std::process::{Output, Stdio};
 use optalign::peer::{PeerOptions, SimPeer, TimeMode};
 use tokio::process::Command;
 
-const BIN: &str = env!("CARGO_BIN_EXE_optalign");
+use crate::BIN;
 
 async fn optalign(args: &[&str], dir: &Path) -> Output {
     Command::new(BIN)

@@ -15,7 +15,7 @@ use optalign::lab::calibration::ResponseCalibration;
 use tokio::io::{AsyncBufReadExt, BufReader};
 use tokio::process::{Child, Command};
 
-const BIN: &str = env!("CARGO_BIN_EXE_optalign");
+use crate::BIN;
 const KEY: &str = "rehearsal-test-key";
 /// The default scene binned by 4: responses, beam radii and fringe period scaled by 1/4.
 const SMALL_SCENE: &str = r#"[michelson]

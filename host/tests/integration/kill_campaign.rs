@@ -14,14 +14,12 @@
 //!
 //! 200 moves by default (about 40 s); `OPTALIGN_CAMPAIGN_MOVES=N` runs N.
 
-mod fault_proxy;
-
 use std::net::SocketAddr;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
-use fault_proxy::{FaultProxy, FaultRates};
+use crate::fault_proxy::{FaultProxy, FaultRates};
 use optalign::link::{Client, ClientError, ClientOptions};
 use optalign::peer::{PeerOptions, SimPeer, TimeMode};
 use optalign_firmware::sim::SimRng;
@@ -452,7 +450,7 @@ async fn campaign(seed: u64, moves: usize) -> (Figures, String) {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn killed_at_random_no_move_runs_twice_and_no_lost_position_goes_unflagged() {
-    let moves = fault_proxy::moves_from_env("OPTALIGN_CAMPAIGN_MOVES", 200);
+    let moves = crate::fault_proxy::moves_from_env("OPTALIGN_CAMPAIGN_MOVES", 200);
     let (_, summary) = campaign(0xC0FFEE, moves).await;
     println!("{summary}");
 }

@@ -13,7 +13,7 @@ use serde_json::Value;
 use tokio::io::{AsyncBufReadExt, BufReader};
 use tokio::process::Command;
 
-const BIN: &str = env!("CARGO_BIN_EXE_optalign");
+use crate::BIN;
 const KEY_VAR: &str = "OPTALIGN_VLM_CLI_TEST_KEY";
 const KEY: &str = "test-key-4f1d";
 

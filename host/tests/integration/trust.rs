@@ -17,7 +17,7 @@ use tokio::net::{TcpListener, TcpStream};
 use tokio::process::Child;
 use tokio::sync::watch;
 
-const BIN: &str = env!("CARGO_BIN_EXE_optalign");
+use crate::BIN;
 const KEY: &str = "trust-test-key";
 
 /// Runs `optalign ARGS --controller URL --key KEY`.

@@ -5,7 +5,7 @@ use std::process::Command;
 
 use image::{ImageBuffer, Luma};
 
-const BIN: &str = env!("CARGO_BIN_EXE_optalign");
+use crate::BIN;
 
 #[test]
 fn a_sixteen_bit_photograph_of_a_beam_is_measured_and_reported_as_json() {

@@ -22,7 +22,7 @@ use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::mpsc;
 
-const BIN: &str = env!("CARGO_BIN_EXE_optalign");
+use crate::BIN;
 const KEY: &str = "hijack-test-key";
 
 async fn peer(time: TimeMode) -> (Arc<SimPeer>, SocketAddr) {

@@ -9,8 +9,6 @@
 //!
 //! 210 moves over three seeds by default; `OPTALIGN_FAULT_MOVES=N` runs N moves per seed.
 
-mod fault_proxy;
-
 use std::collections::HashMap;
 use std::net::SocketAddr;
 use std::sync::{Arc, Mutex};
@@ -18,7 +16,7 @@ use std::time::Duration;
 
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 
-use fault_proxy::{FaultProxy, FaultRates};
+use crate::fault_proxy::{FaultProxy, FaultRates};
 use optalign::link::{Client, ClientError, ClientOptions, Event};
 use optalign::peer::{PeerOptions, SimPeer, TimeMode};
 use optalign_firmware::Session;
@@ -348,7 +346,7 @@ async fn campaign(seed: u64, attempts: u32, moves: usize) -> (Figures, String) {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn moves_through_a_faulty_link_happen_exactly_once_and_positions_agree() {
-    let moves = fault_proxy::moves_from_env("OPTALIGN_FAULT_MOVES", 70);
+    let moves = crate::fault_proxy::moves_from_env("OPTALIGN_FAULT_MOVES", 70);
     let mut total = Figures::default();
     // Few attempts per request make the client give up on some moves, so that their
     // outcomes must be reconciled; many make it ride out every fault.
