@@ -1,19 +1,15 @@
 //! Runs the Python package's pytest suite as part of `cargo test --workspace`: a virtual
-//! environment under the target folder (made once, with maturin, pytest, gymnasium and
-//! numpy from PyPI), the module built into it with `maturin develop`, then `pytest
-//! python/tests`. Skipped, loudly, only when there is no `python3` at all;
-//! `OPTALIGN_PYTHON` names another interpreter.
+//! environment under the target folder (made once, with pytest, gymnasium and numpy from
+//! PyPI), the package staged beside it (its Python sources and the extension module that
+//! this very `cargo test` built, so the module is not compiled a second time by maturin with
+//! other features), then `pytest python/tests`. Skipped, loudly, only when there is no
+//! `python3` at all; `OPTALIGN_PYTHON` names another interpreter.
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
 /// What the environment needs; a change here rebuilds it.
-const REQUIREMENTS: &[&str] = &[
-    "maturin>=1.9,<2",
-    "pytest>=7",
-    "gymnasium>=0.29,<2",
-    "numpy>=1.22",
-];
+const REQUIREMENTS: &[&str] = &["pytest>=7", "gymnasium>=0.29,<2", "numpy>=1.22"];
 
 fn python() -> Option<String> {
     let name = std::env::var("OPTALIGN_PYTHON").unwrap_or_else(|_| "python3".into());
@@ -29,6 +25,54 @@ fn run(what: &str, command: &mut Command) {
         .status()
         .unwrap_or_else(|e| panic!("cannot start {what}: {e}"));
     assert!(status.success(), "{what} failed ({status})");
+}
+
+/// The extension module cargo built for this test run (`python/Cargo.toml` makes the
+/// library a `cdylib` too, and `.cargo/config.toml` builds PyO3 as an extension module, as
+/// maturin would): beside the test binary in the target's `deps` folder.
+fn extension_module() -> PathBuf {
+    let test_binary = std::env::current_exe().expect("the test binary's path");
+    let module = test_binary
+        .parent()
+        .expect("the target's deps folder")
+        .join(format!(
+            "{}_native{}",
+            std::env::consts::DLL_PREFIX,
+            std::env::consts::DLL_SUFFIX
+        ));
+    assert!(
+        module.is_file(),
+        "the extension module {} was not built",
+        module.display()
+    );
+    module
+}
+
+/// Copies the `optalign` package's Python sources and the extension module into `stage`
+/// (emptied first) and returns it, ready for `PYTHONPATH`.
+fn stage_package(package: &Path, stage: &Path) -> PathBuf {
+    let _ = std::fs::remove_dir_all(stage);
+    copy_sources(&package.join("optalign"), &stage.join("optalign"));
+    std::fs::copy(
+        extension_module(),
+        stage.join("optalign").join("_native.abi3.so"),
+    )
+    .expect("cannot stage the extension module");
+    stage.to_path_buf()
+}
+
+/// Copies the `.py` files of `from` and its subpackages into `to`.
+fn copy_sources(from: &Path, to: &Path) {
+    std::fs::create_dir_all(to).expect("cannot make the staging folder");
+    for entry in std::fs::read_dir(from).expect("the package's sources") {
+        let path = entry.expect("a package entry").path();
+        if path.is_dir() && path.file_name().is_some_and(|name| name != "__pycache__") {
+            copy_sources(&path, &to.join(path.file_name().unwrap()));
+        } else if path.extension().is_some_and(|ext| ext == "py") {
+            std::fs::copy(&path, to.join(path.file_name().unwrap()))
+                .expect("cannot stage a Python source");
+        }
+    }
 }
 
 /// The cached virtual environment, (re)made when missing or its requirements changed.
@@ -71,25 +115,16 @@ fn the_python_package_passes_its_pytest_suite() {
     let package = Path::new(env!("CARGO_MANIFEST_DIR"));
     let venv = Path::new(env!("CARGO_TARGET_TMPDIR")).join("python-venv");
     let bin = environment(&python, &venv);
-    let path = std::env::join_paths(std::iter::once(bin.clone()).chain(std::env::split_paths(
-        &std::env::var_os("PATH").unwrap_or_default(),
-    )))
-    .expect("PATH");
-    run(
-        "maturin develop (building the optalign module)",
-        Command::new(bin.join("maturin"))
-            .args(["develop", "--quiet", "--manifest-path"])
-            .arg(package.join("Cargo.toml"))
-            .env("VIRTUAL_ENV", &venv)
-            .env("PATH", &path),
+    let staged = stage_package(
+        package,
+        &Path::new(env!("CARGO_TARGET_TMPDIR")).join("python-package"),
     );
     run(
         "pytest python/tests",
         Command::new(bin.join("python"))
             .args(["-m", "pytest", "-q", "-p", "no:cacheprovider"])
             .arg(package.join("tests"))
-            .current_dir(package)
-            .env("VIRTUAL_ENV", &venv)
-            .env("PATH", &path),
+            .current_dir(&staged)
+            .env("PYTHONPATH", &staged),
     );
 }

@@ -1,6 +1,13 @@
 //! The image-only "vision" policy: beam detection on rendered frames (sub-pixel centroids,
-//! speckle against a spot, stationary artefacts cancelling in frame differences) and one
-//! short end-to-end run per task, judged by the hidden truth.
+//! speckle against a spot, stationary artefacts cancelling in frame differences) and short
+//! end-to-end runs, judged by the hidden truth: one per task with its claims checked, and one
+//! start from each of the hardest families (another camera, scaled responses, uncompensated
+//! backlash).
+//!
+//! Success rates belong to the bench, not here: every family below, and the other starts that
+//! once failed (donut, TEM01 and stray-spot beams, cross-coupling 0.8, a camera placed five
+//! times less repeatably, the relay's refuted responses), are cells of the stability map in
+//! docs/results.md, run on many seeds by `optalign bench --policies vision --sweep ...`.
 
 use optalign::imaging::{Picture, changes, find_beams};
 use std::sync::Arc;
@@ -177,41 +184,15 @@ async fn the_vision_agent_aligns_the_cavity_and_its_claims_match_the_truth() {
 
 #[tokio::test]
 async fn the_vision_agent_aligns_the_relay() {
-    // Seeds 0 and 3 start with the beam at C3 as a large speckle cloud cut by the sensor's
-    // edge, whose centroid misleads the first response fit; 9 is an ordinary start.
-    for seed in [0, 3, 9] {
-        let dir = tempfile::tempdir().unwrap();
-        let summary = run_into(TaskKind::Relay, seed, Some(dir.path().to_path_buf())).await;
-        assert!(
-            summary.success && summary.declared_done,
-            "seed {seed}: {summary:?}"
-        );
-        // The default mounts' backlash is compensated by the controller: no lost motion is
-        // learned where there is none.
-        let band = largest_lost_motion(&transcript_steps(dir.path()));
-        assert!(band < 50.0, "seed {seed}: {band} steps of lost motion");
-    }
-}
-
-#[tokio::test]
-async fn the_relay_servo_does_not_probe_a_refuted_response_again_the_same_way() {
-    // Seed 116: at C1 the spot sits whole by the sensor's edge and both probes from it took
-    // it to the edge; the response they gave sent the servo back to the same tilt, which
-    // refuted it, and the same two probes gave it again until the budget ran out.
-    let summary = run_into(TaskKind::Relay, 116, None).await;
+    // Seed 3 starts with the beam at C3 as a large speckle cloud cut by the sensor's edge,
+    // whose centroid misleads the first response fit.
+    let dir = tempfile::tempdir().unwrap();
+    let summary = run_into(TaskKind::Relay, 3, Some(dir.path().to_path_buf())).await;
     assert!(summary.success && summary.declared_done, "{summary:?}");
-}
-
-#[tokio::test]
-async fn the_relay_agent_takes_a_spot_that_no_tilt_moves_for_stray_light() {
-    // Realistic seed 102: at C3 the beam went dark after a long tilt and the agent steered
-    // by a stationary stray spot, growing its probes until they met the end of the range,
-    // then sending tilts of zero steps to the end of the budget.
-    let path =
-        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../docs/scenarios/realistic.toml");
-    let scenario = ScenarioFile::load(&path).expect("the realistic scenario");
-    let summary = run_on(TaskKind::Relay, 102, scenario, None).await;
-    assert!(summary.success && summary.declared_done, "{summary:?}");
+    // The default mounts' backlash is compensated by the controller: no lost motion is
+    // learned where there is none.
+    let band = largest_lost_motion(&transcript_steps(dir.path()));
+    assert!(band < 50.0, "{band} steps of lost motion");
 }
 
 /// The widest dead band the relay agent claims to have learned on any axis, steps.
@@ -236,7 +217,7 @@ async fn the_vision_agent_aligns_every_task_on_a_1280_by_720_camera() {
         scenario.relay.camera.width_px,
         scenario.relay.camera.height_px,
     ) = (1280, 720);
-    for task in [TaskKind::Michelson, TaskKind::Cavity, TaskKind::Relay] {
+    for task in [TaskKind::Michelson, TaskKind::Cavity] {
         let summary = run_on(task, 4, scenario.clone(), None).await;
         assert!(
             summary.success && summary.declared_done,
@@ -246,21 +227,12 @@ async fn the_vision_agent_aligns_every_task_on_a_1280_by_720_camera() {
 }
 
 #[tokio::test]
-async fn the_vision_agent_aligns_the_relay_with_every_response_a_quarter_and_four_times_the_default()
+async fn the_vision_agent_aligns_the_michelson_at_four_times_and_the_cavity_at_a_quarter_of_the_response()
  {
-    // At four times the response the beam starts off the sensor at C1: the search grid is
-    // sized from the brief's tilt per step and station distances, not from any constant.
-    aligns_with_the_response_scaled(&[
-        (TaskKind::Relay, 0.25, 1),
-        (TaskKind::Relay, 4.0, 1),
-        (TaskKind::Relay, 4.0, 6),
-    ])
-    .await;
-}
-
-/// Asserts that every `(task, sensitivity scale, seed)` run aligns and is declared done.
-async fn aligns_with_the_response_scaled(runs: &[(TaskKind, f64, u64)]) {
-    for &(task, scale, seed) in runs {
+    // Michelson x4: both beams start far off the sensor and are found by the joint search
+    // over the tiled grid. Cavity x0.25: the secondary moves a quarter as far per step, so
+    // the probes that tell its response must be four times as long.
+    for (task, scale, seed) in [(TaskKind::Michelson, 4.0, 3), (TaskKind::Cavity, 0.25, 2)] {
         let scenario = Knob::SensitivityScale
             .apply(&ScenarioFile::default(), scale)
             .expect("a valid scale");
@@ -273,65 +245,16 @@ async fn aligns_with_the_response_scaled(runs: &[(TaskKind, f64, u64)]) {
 }
 
 #[tokio::test]
-async fn the_vision_agent_aligns_the_michelson_and_the_cavity_at_a_quarter_and_four_times_the_response()
- {
-    // Michelson x4: both beams start far off the sensor; seed 3 spent the budget before the
-    // joint search and the tiled grid (seed 5 of 0..9 still does). Michelson x0.25: the
-    // command range keeps both beams within a few radii of the centre; seed 5 starts with
-    // them on top of each other and spent the budget steering the probed beam to the
-    // centre, onto the other, until probes were steered clear of it within the reach of
-    // the range. Cavity x4, seed 2: the secondary shows only in a patch of commands smaller
-    // than the search's first grid, away from the start; it was found only once the search
-    // covered the range with the centres of that grid's cells, and then only because a
-    // secondary clear of the primary's core counts although it lies within the primary's
-    // (halo-wide) second-moment radius. Seed 5: that search lands the secondary inside the
-    // primary's saturated core; only the rim of it that shows beside the core tells the
-    // agent to probe there rather than search on.
-    aligns_with_the_response_scaled(&[
-        (TaskKind::Michelson, 4.0, 3),
-        (TaskKind::Michelson, 0.25, 2),
-        (TaskKind::Michelson, 0.25, 5),
-        (TaskKind::Cavity, 4.0, 3),
-        (TaskKind::Cavity, 4.0, 2),
-        (TaskKind::Cavity, 4.0, 5),
-    ])
-    .await;
-}
-
-#[tokio::test]
-async fn the_vision_agent_aligns_the_relay_when_the_camera_lands_five_times_less_repeatably() {
-    // Each placement of the camera is off by about 50 px: one image at C8 cannot tell where
-    // the beam is to within the 50 px tolerance, so the agent averages as many placements as
-    // the brief's repeatability calls for (seeds 0, 3 and 5 ended dark, 80 px and 117 px off
-    // when it trusted one), and a spot lost at a far station is searched for there.
-    let scenario = Knob::PlacementError
-        .apply(&ScenarioFile::default(), 5.0)
-        .expect("a valid scale");
-    for seed in [0, 3, 5] {
-        let summary = run_on(TaskKind::Relay, seed, scenario.clone(), None).await;
-        assert!(
-            summary.success && summary.declared_done,
-            "seed {seed}: {summary:?}"
-        );
-    }
-}
-
-#[tokio::test]
 async fn the_vision_agent_aligns_mounts_with_300_steps_of_uncompensated_backlash() {
     // The agent measures the dead band from reversals that moved the beam less than its
     // map predicted, and its commands take it up (without that, seven Michelson runs in ten
-    // ended 50 to 65 px off). Cavity seed 3 is the one of its ten needing most evaluations.
-    // The relay learns the band per mirror from its servo's reversals: seed 0 once spent its
-    // budget probing again and again a spot the band held 20 px from the centre of C1.
+    // ended 50 to 65 px off). The relay learns the band per mirror from its servo's
+    // reversals: seed 0 once spent its budget probing again and again a spot the band held
+    // 20 px from the centre of C1.
     let scenario = Knob::Backlash
         .apply(&ScenarioFile::default(), 300.0)
         .expect("a valid backlash");
-    for (task, seed) in [
-        (TaskKind::Michelson, 2),
-        (TaskKind::Michelson, 7),
-        (TaskKind::Cavity, 3),
-        (TaskKind::Relay, 0),
-    ] {
+    for (task, seed) in [(TaskKind::Michelson, 2), (TaskKind::Relay, 0)] {
         let dir = tempfile::tempdir().unwrap();
         let summary = run_on(task, seed, scenario.clone(), Some(dir.path().to_path_buf())).await;
         assert!(
@@ -348,45 +271,4 @@ async fn the_vision_agent_aligns_mounts_with_300_steps_of_uncompensated_backlash
             );
         }
     }
-}
-
-#[tokio::test]
-async fn the_vision_agent_aligns_the_michelson_with_beams_that_are_not_gaussian_or_not_alone() {
-    // Each start once failed: a donut whose check found the wrong spot, a two-lobed beam
-    // whose map sent the agent between one check and one relocation until the budget ran
-    // out (seed 4), two-lobed beams probed onto each other (seed 8), a check that anchored its map on a stray spot taken for the beam, and a beam
-    // that left the view from on top of a stray spot, measured with the spot as one.
-    let base = ScenarioFile::default();
-    let set = |knob: Knob, value: &str| {
-        let value = knob.parse_value(value).expect("a known value");
-        knob.apply(&base, value).expect("a valid scenario")
-    };
-    let donut = set(Knob::BeamProfile, "donut");
-    let tem01 = set(Knob::BeamProfile, "tem01");
-    let stray = set(Knob::StraySpots, "3");
-    for (name, scenario, seed) in [
-        ("donut", donut, 5),
-        ("tem01", tem01.clone(), 4),
-        ("tem01", tem01, 8),
-        ("stray spots", stray.clone(), 6),
-        ("stray spots", stray, 8),
-    ] {
-        let summary = run_on(TaskKind::Michelson, seed, scenario, None).await;
-        assert!(
-            summary.success && summary.declared_done,
-            "{name}, seed {seed}: {summary:?}"
-        );
-    }
-}
-
-#[tokio::test]
-async fn the_vision_agent_checks_again_when_a_refit_moves_where_the_final_command_puts_a_beam() {
-    // Michelson at cross-coupling 0.8, seed 5: a check confirmed both maps, the map refitted
-    // with that check's sightings turned mirror 2's response by about 20 degrees, and the
-    // final command from it, sent with "done", left beam 2 112 px off.
-    let scenario = Knob::CrossCoupling
-        .apply(&ScenarioFile::default(), 0.8)
-        .expect("a valid coupling");
-    let summary = run_on(TaskKind::Michelson, 5, scenario, None).await;
-    assert!(summary.success && summary.declared_done, "{summary:?}");
 }
