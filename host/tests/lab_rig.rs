@@ -40,16 +40,29 @@ fn rig_file(text: &str, dir: &Path) -> RigFile {
     RigFile::parse(text, dir).unwrap()
 }
 
-/// The rig-file tables of the simulated camera for `seed`, with no settling waits.
+/// docs/scenarios/binned.toml: the default scene through a camera binned to 480 x 270 px,
+/// quick to render and analyse (the cavity and the relay keep their default cameras).
+fn binned_scenario_path() -> std::path::PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../docs/scenarios/binned.toml")
+}
+
+fn binned_scenario() -> ScenarioFile {
+    ScenarioFile::load(&binned_scenario_path()).expect("docs/scenarios/binned.toml")
+}
+
+/// The rig-file tables of the simulated camera for `seed` on the binned scene, with no
+/// settling waits.
 fn instant_sim_camera(seed: u64) -> String {
     format!(
         r#"[camera]
 kind = "sim"
 seed = {seed}
+scenario = "{}"
 [settle]
 after_motor_s = 0
 after_camera_s = 0
-"#
+"#,
+        binned_scenario_path().display()
     )
 }
 
@@ -122,7 +135,7 @@ async fn run_vision(rig: RigFile) -> optalign::run::RunSummary {
 #[tokio::test(flavor = "multi_thread")]
 async fn michelson_runs_through_the_lab_rig_and_is_scored_by_calibration() {
     let dir = tempfile::tempdir().unwrap();
-    let scenario = ScenarioFile::default();
+    let scenario = binned_scenario();
     let seed = 2;
     let offsets = michelson_offsets(&scenario.michelson, seed);
     let (peer, url) = peer(4, 30).await;
@@ -176,7 +189,7 @@ async fn michelson_runs_through_the_lab_rig_and_is_scored_by_calibration() {
 #[tokio::test(flavor = "multi_thread")]
 async fn cavity_runs_through_the_lab_rig_with_remapped_axes() {
     let dir = tempfile::tempdir().unwrap();
-    let scenario = ScenarioFile::default();
+    let scenario = binned_scenario();
     let seed = 4;
     let offsets = cavity_offsets(&scenario.cavity, seed);
     let (peer, url) = peer(4, 30).await;
@@ -218,7 +231,7 @@ cavity_aligned = [{}, {}]
 #[tokio::test(flavor = "multi_thread")]
 async fn relay_runs_through_the_lab_rig_over_two_controllers_and_the_camera_mover() {
     let dir = tempfile::tempdir().unwrap();
-    let scenario = ScenarioFile::default();
+    let scenario = binned_scenario();
     let seed = 9;
     let offsets = relay_offsets(&scenario.relay, seed).unwrap();
     let (peer_a, url_a) = peer(4, 30).await;
@@ -314,7 +327,7 @@ async fn stage_michelson(url: &str, offsets: [i32; 4]) {
 #[tokio::test(flavor = "multi_thread")]
 async fn response_calibration_recovers_the_true_sensitivity_within_ten_percent() {
     let dir = tempfile::tempdir().unwrap();
-    let scenario = ScenarioFile::default();
+    let scenario = binned_scenario();
     let seed = 3;
     let offsets = michelson_offsets(&scenario.michelson, seed);
     let (_peer, url) = peer(4, 30).await;
@@ -349,7 +362,7 @@ async fn response_calibration_recovers_the_true_sensitivity_within_ten_percent()
 #[tokio::test(flavor = "multi_thread")]
 async fn backlash_calibration_recovers_the_true_dead_band_within_ten_percent() {
     let dir = tempfile::tempdir().unwrap();
-    let scenario = ScenarioFile::default();
+    let scenario = binned_scenario();
     let seed = 3;
     let offsets = michelson_offsets(&scenario.michelson, seed);
     let (_peer, url) = peer(4, 40).await;

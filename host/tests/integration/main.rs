@@ -2,8 +2,8 @@
 //! executable instead of one per file: each module is one family of checks (run one with
 //! `cargo test -p optalign --test integration <module>::`).
 //!
-//! `lab_rig` stays a binary of its own: it puts the lab key in the process environment,
-//! which no other test here may share.
+//! Two stay binaries of their own: `lab_rig` puts the lab key in the process environment,
+//! and `soak` watches the resident memory of its process, which no other test may share.
 
 mod baselines_runs;
 mod beams_cli;
@@ -22,7 +22,6 @@ mod peer_limits;
 mod power_cut;
 mod rehearsal;
 mod sim_rig;
-mod soak;
 mod stalled_peer;
 mod trust;
 mod vision_agent;

@@ -4,8 +4,8 @@
 //! both mirrors and `calibrate backlash --write` succeed on it and write their results;
 //! `run --policy vision` then aligns it and is scored through the calibration just made.
 //! On a bench with a motor that is not wired, both calibrations refuse to save and say why.
-//! The scene is binned to 480 x 270 px (the same field, a quarter of the pixels) to keep the
-//! test quick.
+//! The scene is docs/scenarios/binned.toml (480 x 270 px, the same field) to keep the test
+//! quick.
 
 use std::path::{Path, PathBuf};
 use std::process::{Output, Stdio};
@@ -17,15 +17,6 @@ use tokio::process::{Child, Command};
 
 use crate::BIN;
 const KEY: &str = "rehearsal-test-key";
-/// The default scene binned by 4: responses, beam radii and fringe period scaled by 1/4.
-const SMALL_SCENE: &str = r#"[michelson]
-width_px = 480
-height_px = 270
-mirror_1_sensitivity_px_per_step = [[0.0425, 0.003], [-0.0025, -0.04]]
-mirror_2_sensitivity_px_per_step = [[-0.04125, -0.00375], [0.003, 0.03875]]
-beam_radius_px = [32.5, 28.75]
-fringe_period_px = 10.5
-"#;
 
 /// A rehearsal peer in its own process, and the rig file it wrote.
 struct Bench {
@@ -34,8 +25,7 @@ struct Bench {
 }
 
 async fn rehearsal_bench(dir: &Path, extra: &[&str]) -> Bench {
-    let scenario = dir.join("small.toml");
-    std::fs::write(&scenario, SMALL_SCENE).unwrap();
+    let scenario = Path::new(env!("CARGO_MANIFEST_DIR")).join("../docs/scenarios/binned.toml");
     let rig = dir.join("rig.toml");
     let mut peer = Command::new(BIN)
         .args([
