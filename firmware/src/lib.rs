@@ -56,6 +56,7 @@ mod slots;
 pub mod storage;
 #[cfg(test)]
 mod tests;
+pub mod timeline;
 
 pub use connection::{Connection, Deadlines, Port, Received};
 pub use controller::{BoardInfo, Controller};
