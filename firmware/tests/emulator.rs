@@ -239,6 +239,8 @@ struct Trace {
     uart: Vec<u8>,
     /// (ns, gpio, level)
     edges: Vec<(u64, u32, bool)>,
+    /// Profiled calls: (function, cycles).
+    calls: Vec<(String, u64)>,
 }
 
 fn workspace() -> PathBuf {
@@ -323,6 +325,7 @@ fn emulate_frames(frames: &[(u64, Vec<u8>)], end_us: u64, name: &str, options: &
     let mut parsed = Trace {
         uart: Vec::new(),
         edges: Vec::new(),
+        calls: Vec::new(),
     };
     for line in text.lines() {
         let fields: Vec<&str> = line.split(' ').collect();
@@ -333,6 +336,9 @@ fn emulate_frames(frames: &[(u64, Vec<u8>)], end_us: u64, name: &str, options: &
                     .edges
                     .push((ns.parse().unwrap(), gpio.parse().unwrap(), *level == "1"));
             }
+            ["C", name, cycles] => parsed
+                .calls
+                .push((name.to_string(), cycles.parse().unwrap())),
             _ => {}
         }
     }
@@ -894,19 +900,30 @@ fn a_core_stalled_past_the_lookahead_is_reported_as_an_underrun_and_no_step_is_l
         Command::Status,
     ]);
     let (move_at, _) = plan.requests[2];
-    // Halfway, the core stops for 6 ms: three times the lookahead.
-    let freeze_at = move_at + 300_000;
-    let freeze = format!("{freeze_at}:6000");
     let frames: Vec<(u64, Vec<u8>)> = plan
         .requests
         .iter()
         .map(|(at, request)| (*at, plain_frame(request)))
         .collect();
-    let trace = emulate_frames(&frames, plan.end_us, "stall", &["--freeze", &freeze]);
-    let replies = replies_by_id(&messages(&trace));
-    let Some(Reply::Status(status)) = replies.get(&4) else {
-        panic!("no status");
+    let stalled = |length_us: u64, name: &str| {
+        // Halfway through the move.
+        let freeze = format!("{}:{length_us}", move_at + 300_000);
+        let trace = emulate_frames(&frames, plan.end_us, name, &["--freeze", &freeze]);
+        let replies = replies_by_id(&messages(&trace));
+        let Some(Reply::Status(status)) = replies.get(&4) else {
+            panic!("no status");
+        };
+        (trace, status.clone())
     };
+
+    // Well within the lookahead less the motion task's period: nothing shows on the pins.
+    let (trace, status) = stalled(500, "short-stall");
+    assert_eq!(status.axes[0].underruns, 0);
+    let (_, compared) = check_timing(&pin_changes(&trace.edges), &plan.oracle);
+    assert!(compared >= 599, "{compared} intervals compared");
+
+    // Three times the lookahead: the steps after it come late, and it is reported.
+    let (trace, status) = stalled(6_000, "stall");
     let axis = &status.axes[0];
     assert_eq!((axis.position, axis.moving), (600, false));
     assert!(axis.underruns >= 1, "the stall went unnoticed");
@@ -925,8 +942,66 @@ fn a_core_stalled_past_the_lookahead_is_reported_as_an_underrun_and_no_step_is_l
         .fold(0.0f64, f64::max);
     assert!(late > 1_000.0, "no step came late: {late:.1} µs");
     eprintln!(
-        "emulator: a 6 ms stall of the core mid-move: {} underrun(s) on axis 0, steps late by \
-         up to {late:.0} µs, all 600 made",
+        "emulator: a 0.5 ms stall of the core mid-move changes no edge; a 6 ms one: {} \
+         underrun(s) on axis 0, steps late by up to {late:.0} µs, all 600 made",
         axis.underruns
     );
+}
+
+/// The CRC-32C's cost on the image, each way: every frame's checksum profiled in the
+/// emulator, received requests and sent replies apart. A measurement (docs/results.md):
+/// run it on images built with each CRC implementation.
+#[test]
+#[ignore = "needs the emulator image and Node: see the module documentation"]
+fn crc_cycles_per_frame_each_way() {
+    let mut commands = vec![Command::Hello {
+        protocol_version: PROTOCOL_VERSION,
+    }];
+    commands.extend(std::iter::repeat_n(Command::Status, 16));
+    commands.push(Command::GetConfig { axis: 0 });
+    let plan = plan(commands);
+    let frames: Vec<(u64, Vec<u8>)> = plan
+        .requests
+        .iter()
+        .map(|(at, request)| (*at, plain_frame(request)))
+        .collect();
+    let trace = emulate_frames(&frames, plan.end_us, "crc", &["--profile", "frame_crc"]);
+    // One request, then its reply, and so on: received and sent frames alternate.
+    let received: Vec<usize> = plan.requests.iter().map(|(_, r)| payload_len(r)).collect();
+    let sent: Vec<usize> = messages(&trace).iter().map(payload_len).collect();
+    assert_eq!(
+        trace.calls.len(),
+        received.len() + sent.len(),
+        "one checksum per frame"
+    );
+    let mut report = Vec::new();
+    for (way, lengths, parity) in [("received", &received, 0), ("sent", &sent, 1)] {
+        let mut by_length: std::collections::BTreeMap<usize, Vec<u64>> = Default::default();
+        for (length, (_, cycles)) in lengths
+            .iter()
+            .zip(trace.calls.iter().skip(parity).step_by(2))
+        {
+            by_length.entry(*length).or_default().push(*cycles);
+        }
+        for (length, mut cycles) in by_length {
+            cycles.sort_unstable();
+            let least = cycles[0];
+            assert!(least > 0);
+            report.push(format!(
+                "{way} {length}-byte payload: {least} cycles ({:.1} per byte, {} frames)",
+                least as f64 / length as f64,
+                cycles.len()
+            ));
+        }
+    }
+    eprintln!("emulator: CRC-32C per frame (fewest cycles of each size):");
+    for line in report {
+        eprintln!("  {line}");
+    }
+}
+
+/// A message's postcard payload length: what the CRC covers in a plain frame.
+fn payload_len<T: serde::Serialize>(message: &T) -> usize {
+    let mut buffer = [0u8; optalign_protocol::MAX_PAYLOAD];
+    postcard::to_slice(message, &mut buffer).unwrap().len()
 }
