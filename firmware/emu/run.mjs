@@ -1,23 +1,32 @@
 // Boots an RP2040 firmware ELF in rp2040js without the boot ROM, plays a script of bytes
 // into UART0 at given emulated times, and writes a trace of what the firmware did.
 //
-//   node run.mjs --image FIRMWARE.elf --script SCRIPT --trace TRACE [--ms 3000] [--wall-ms 120000]
+//   node run.mjs --image FIRMWARE.elf --script SCRIPT --trace TRACE [--ms 3000]
+//       [--wall-ms 120000] [--freeze START_US:LEN_US] [--profile REGEX]
 //
 // SCRIPT: one line per burst, `<emulated µs> <hex bytes>`; the bytes arrive 86.8 µs apart
 // (115200 baud 8N1) from that time on.
 // TRACE: `U <µs> <byte>` for every byte the firmware sends on UART0 TX, `G <ns> <gpio>
-// <0|1>` for every output level change on GPIO 2..17, and a last line `END <reason>
-// <emulated ms>`, reason `time` when the run lasted its full length. The process exits
-// non-zero when it did not (a panic's `bkpt`, a jump into the absent boot ROM, an
-// emulator exception, the wall-clock budget).
+// <0|1>` for every output level change on GPIO 2..17, `C <symbol> <cycles>` for every
+// call of a profiled function, and a last line `END <reason> <emulated ms>`, reason `time`
+// when the run lasted its full length. The process exits non-zero when it did not (a
+// panic's `bkpt`, a jump into the absent boot ROM, an emulator exception, the wall-clock
+// budget).
+//
+// --freeze stalls the core for LEN_US from START_US, as the longest critical section
+// would: no instruction runs and no interrupt is taken, while the clock, the timer, the
+// DMA and the PIO go on. --profile counts, for each call of the functions whose ELF symbol
+// (mangled) matches REGEX, the cycles from its entry to its return, interrupts taken
+// meanwhile included.
 //
 // Deterministic: the run loop executes one instruction at a time and, while the core sleeps
-// in WFE/WFI, jumps the clock to the next alarm; the same image and script give the same
-// trace. The assertions live in the Rust test that writes the script and reads the trace
-// (firmware/tests/emulator.rs).
+// in WFE/WFI, jumps the clock to the next alarm or PIO event; the same image and script
+// give the same trace. The assertions live in the Rust test that writes the script and
+// reads the trace (firmware/tests/emulator.rs).
 //
-// rp2040js 1.4.1 (pinned in package-lock.json) needs five corrections for embassy-rp,
-// applied below to its internals; the harness refuses to run if those internals changed.
+// rp2040js 1.4.1 (pinned in package-lock.json) needs seven corrections for embassy-rp and
+// the step engine, applied below to its internals; the harness refuses to run if those
+// internals changed.
 import { readFileSync, writeFileSync } from 'node:fs';
 import { RP2040 } from 'rp2040js';
 
@@ -32,6 +41,12 @@ for (const required of ['image', 'script', 'trace']) {
 }
 const RUN_NS = Number(args.ms ?? 3000) * 1e6;
 const WALL_MS = Number(args['wall-ms'] ?? 120000);
+const [FREEZE_FROM_NS, FREEZE_UNTIL_NS] = (() => {
+  if (!args.freeze) return [Infinity, Infinity];
+  const [from, length] = args.freeze.split(':').map(Number);
+  if (!(from >= 0) || !(length > 0)) fail(`bad --freeze ${args.freeze}: START_US:LEN_US`);
+  return [from * 1000, (from + length) * 1000];
+})();
 const FLASH_BASE = 0x10000000;
 const UART_BYTE_NS = 86_800;
 const TRACED_GPIO = [...Array(16).keys()].map((i) => i + 2);
@@ -60,10 +75,15 @@ mcu.logger = {
 {
   const timer = mcu.peripherals[0x40054];
   const uart = mcu.uart[0];
+  const machine = mcu.pio[1]?.machines?.[0];
   const known =
     typeof timer?.fireAlarm === 'function' && timer.alarms?.[0]?.clockAlarm &&
     'interruptStatus' in uart && 'interruptMask' in uart && typeof uart.checkInterrupts === 'function' &&
-    'eventRegistered' in mcu.core && typeof mcu.core.executeInstruction === 'function';
+    'eventRegistered' in mcu.core && typeof mcu.core.executeInstruction === 'function' &&
+    'nextAlarm' in clock && typeof mcu.pio[1]?.run === 'function' && 'stopped' in mcu.pio[1] &&
+    typeof machine?.step === 'function' && typeof machine?.checkWait === 'function' &&
+    'waiting' in machine && 'x' in machine && machine?.txFIFO?.constructor &&
+    typeof mcu.pio[1]?.checkChangedPins === 'function';
   if (!known) fail('rp2040js internals changed: re-check the corrections in run.mjs (written for 1.4.1)');
 }
 // (1) UARTDMACR (0x48) is not modelled and reads as all ones, which makes embassy's buffered
@@ -108,6 +128,93 @@ for (const uart of mcu.uart) {
 }
 // (5) XIP_CTRL is not mapped and reads as all ones; reads as zero (idle) instead.
 mcu.peripherals[(0x14000000 >>> 14) << 2] = { readUint32: () => 0, writeUint32Atomic() {} };
+// (6) The PIO runs from setTimeout callbacks, off the emulated clock: run it in step with the
+// core instead (`advancePio` below), one instruction per state machine and system clock
+// cycle (the images run their state machines at divider 1).
+for (const pio of mcu.pio) pio.run = () => {};
+// (7) FIFO join is not modelled: a state machine whose SHIFTCTRL joins the FIFOs gets its
+// 8-word transmit FIFO, as on silicon.
+const SHIFTCTRL_FJOIN_TX = 1 << 30;
+for (const pio of mcu.pio) {
+  for (const machine of pio.machines) {
+    const write = machine.writeUint32.bind(machine);
+    machine.writeUint32 = (offset, value) => {
+      write(offset, value);
+      const size = value & SHIFTCTRL_FJOIN_TX ? 8 : 4;
+      if (offset === 0x0d0 - 0x0c8 && machine.txFIFO.size !== size && machine.txFIFO.empty) {
+        machine.txFIFO = new machine.txFIFO.constructor(size);
+      }
+    };
+  }
+}
+
+// ---------------------------------------------------------------- the PIO, in step
+const NS_PER_CYCLE = 1e9 / mcu.clkSys;
+// The time of the cycle the PIO is executing, while it runs: pin changes are stamped with it.
+let pioStampNs = null;
+
+/** Cycles state machine `machine` keeps looping on a `jmp x--` to itself, or 0. */
+function countdown(pio, machine) {
+  const op = pio.instructions[machine.pc];
+  const jmpXDec = op >>> 13 === 0 && ((op >> 5) & 7) === 2;
+  const toItself = (op & 0x1f) === machine.pc && ((op >> 8) & 0x1f) === 0;
+  return jmpXDec && toItself ? machine.x >>> 0 : 0;
+}
+
+/** Runs every enabled state machine for `cycles` cycles from `startNs`. */
+function advancePio(cycles, startNs) {
+  for (const pio of mcu.pio) {
+    if (pio.stopped) continue;
+    for (const machine of pio.machines) {
+      if (!machine.enabled) continue;
+      let done = 0;
+      while (done < cycles) {
+        if (machine.waiting) {
+          machine.checkWait();
+          if (machine.waiting) break;
+        }
+        const loop = countdown(pio, machine);
+        if (loop > 0) {
+          const skip = Math.min(loop, cycles - done);
+          machine.x = (machine.x - skip) >>> 0;
+          done += skip;
+          continue;
+        }
+        pioStampNs = startNs + done * NS_PER_CYCLE;
+        machine.step();
+        pio.checkChangedPins();
+        done += 1;
+      }
+    }
+  }
+  pioStampNs = null;
+}
+
+/** Cycles until some state machine does more than wait or count down (at least 1). */
+function pioQuietCycles() {
+  let quiet = Infinity;
+  for (const pio of mcu.pio) {
+    if (pio.stopped) continue;
+    for (const machine of pio.machines) {
+      if (!machine.enabled || machine.waiting) continue;
+      quiet = Math.min(quiet, Math.max(1, countdown(pio, machine)));
+    }
+  }
+  return quiet;
+}
+
+/** Lets `ns` pass with the core doing nothing (asleep, or frozen). */
+function idle(ns) {
+  const start = clock.nanos;
+  advancePio(Math.round(ns / NS_PER_CYCLE), start);
+  clock.tick(ns);
+}
+
+/** How long the core may idle before something happens (an alarm, a PIO event, the end). */
+function idleSpan(limitNs) {
+  const alarm = clock.nextAlarm ? Math.max(0, clock.nextAlarm.nanos - clock.nanos) : Infinity;
+  return Math.min(alarm, pioQuietCycles() * NS_PER_CYCLE, limitNs - clock.nanos);
+}
 
 // ---------------------------------------------------------------- image, direct boot
 const elf = readFileSync(args.image);
@@ -141,9 +248,41 @@ for (const gpio of TRACED_GPIO) {
   mcu.gpio[gpio].addListener((state) => {
     if (state > 1 || state === level) return;
     level = state;
-    trace.push(`G ${Math.round(clock.nanos)} ${gpio} ${state}`);
+    trace.push(`G ${Math.round(pioStampNs ?? clock.nanos)} ${gpio} ${state}`);
   });
 }
+
+// Profiled functions: entry address (Thumb bit clear) to name, from the ELF symbol table.
+const profiled = new Map();
+if (args.profile) {
+  const wanted = new RegExp(args.profile);
+  const sections = elf.readUInt32LE(32);
+  const sectionSize = elf.readUInt16LE(46);
+  const sectionCount = elf.readUInt16LE(48);
+  const section = (i) => {
+    const at = sections + i * sectionSize;
+    return {
+      type: elf.readUInt32LE(at + 4),
+      offset: elf.readUInt32LE(at + 16),
+      size: elf.readUInt32LE(at + 20),
+      link: elf.readUInt32LE(at + 24),
+    };
+  };
+  for (let i = 0; i < sectionCount; i++) {
+    const symtab = section(i);
+    if (symtab.type !== 2) continue;
+    const strtab = section(symtab.link);
+    for (let at = symtab.offset; at < symtab.offset + symtab.size; at += 16) {
+      const nameAt = strtab.offset + elf.readUInt32LE(at);
+      const name = elf.toString('latin1', nameAt, elf.indexOf(0, nameAt));
+      const type = elf.readUInt8(at + 12) & 0xf;
+      if (type === 2 && wanted.test(name)) profiled.set(elf.readUInt32LE(at + 4) & ~1, name);
+    }
+  }
+  if (profiled.size === 0) fail(`no function matches ${args.profile} in ${args.image}`);
+}
+// The call being profiled: its name, where it returns to and the cycles it took so far.
+let call = null;
 for (const line of readFileSync(args.script, 'utf8').split('\n')) {
   if (!line.trim()) continue;
   const [at, hex] = line.trim().split(/\s+/);
@@ -163,13 +302,27 @@ const started = performance.now();
 try {
   while (clock.nanos < RUN_NS && reason === 'time') {
     for (let i = 0; i < 100000 && clock.nanos < RUN_NS && reason === 'time'; i++) {
-      if (core.waiting) {
-        const next = clock.nanosToNextAlarm;
-        clock.tick(next > 0 ? Math.min(next, RUN_NS - clock.nanos) : RUN_NS - clock.nanos);
+      const now = clock.nanos;
+      if (now >= FREEZE_FROM_NS && now < FREEZE_UNTIL_NS) {
+        idle(Math.max(NS_PER_CYCLE, idleSpan(Math.min(RUN_NS, FREEZE_UNTIL_NS))));
+      } else if (core.waiting) {
+        idle(Math.max(NS_PER_CYCLE, idleSpan(Math.min(RUN_NS, FREEZE_FROM_NS > now ? FREEZE_FROM_NS : RUN_NS))));
       } else if (core.PC < 0x4000) {
         reason = `boot-rom-call-at-0x${core.PC.toString(16)}`;
       } else {
-        clock.tick((core.executeInstruction() * 1e9) / mcu.clkSys);
+        if (call === null && profiled.size > 0 && profiled.has(core.PC)) {
+          call = { name: profiled.get(core.PC), returnTo: core.LR & ~1, cycles: 0 };
+        }
+        const cycles = core.executeInstruction();
+        if (call !== null) {
+          call.cycles += cycles;
+          if (core.PC === call.returnTo) {
+            trace.push(`C ${call.name} ${call.cycles}`);
+            call = null;
+          }
+        }
+        advancePio(cycles, now);
+        clock.tick(cycles * NS_PER_CYCLE);
       }
     }
     if (performance.now() - started > WALL_MS) reason = 'wall-clock-budget';

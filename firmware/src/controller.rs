@@ -93,6 +93,8 @@ pub struct Controller<S: Storage> {
     last_storage_failure: Option<StorageFailure>,
     /// The latest record write failed: what it held is not stored.
     save_failed: bool,
+    /// Each axis's step engine underruns since start-up, as the embedder counts them.
+    underruns: [u32; MAX_AXES],
 }
 
 impl<S: Storage> Controller<S> {
@@ -170,6 +172,7 @@ impl<S: Storage> Controller<S> {
             storage_failures: 0,
             last_storage_failure: None,
             save_failed: false,
+            underruns: [0; MAX_AXES],
         }
     }
 
@@ -184,6 +187,14 @@ impl<S: Storage> Controller<S> {
     /// The configuration in force on `axis` (the board reads the driver kind from it).
     pub fn axis_config(&self, axis: u8) -> Option<&AxisConfig> {
         self.axes.get(usize::from(axis)).map(|a| &a.config)
+    }
+
+    /// Takes the underruns of each axis's step engine since start-up, as the embedder
+    /// counts them (axis 0 first), for `Status`.
+    pub fn record_underruns(&mut self, counts: &[u32]) {
+        for (slot, &count) in self.underruns.iter_mut().zip(counts) {
+            *slot = count;
+        }
     }
 
     /// Whether a move is running or waiting to run.
@@ -523,6 +534,7 @@ impl<S: Storage> Controller<S> {
                     limits: axis.config.limits,
                     faults: axis.faults,
                     powered: axis.powered,
+                    underruns: self.underruns.get(usize::from(index)).copied().unwrap_or(0),
                 }
             })
             .collect();

@@ -21,18 +21,19 @@
 //! in turn never runs; it finishes `Stopped` at once.
 
 use heapless::String;
-use optalign_protocol::auth::{Nonce, session_key, verify_tag};
+use optalign_protocol::auth::Nonce;
 use optalign_protocol::error_reply;
 use optalign_protocol::limits::KEY_LEN;
 use optalign_protocol::seal::{Direction, Opener, Sealer};
 use optalign_protocol::{
     Access, AxisConfig, AxisValue, Capabilities, Command, ErrorCode, ErrorReply, Faults,
     FrameError, Identity, MAX_AXES, MoveOutcome, Notification, PROTOCOL_VERSION, PeerMessage,
-    Reply, Request, RequestId,
+    REFUSED_SINCE, RefusalDetail, Reply, Request, RequestId,
 };
 
 use crate::config::validate;
 use crate::controller::Controller;
+use crate::crypto::{Done, Outcome, Work};
 use crate::motion::{AxisPlan, Move};
 use crate::nonce::NonceError;
 use crate::path::plan_path;
@@ -41,9 +42,37 @@ use crate::replay::ReplyCache;
 use crate::session::{LinkKind, RngSource, Session};
 use crate::storage::Storage;
 
+/// What a request comes to before its cryptography.
+enum Step {
+    Reply(Reply),
+    Work(Work),
+}
+
+/// A refusal: a plain error, or one with its detail ([`Reply::Refused`]).
+enum Denied {
+    Plain(ErrorReply),
+    Detailed(ErrorReply, RefusalDetail),
+}
+
+impl From<ErrorReply> for Denied {
+    fn from(error: ErrorReply) -> Self {
+        Self::Plain(error)
+    }
+}
+
+impl Denied {
+    fn into_reply(self) -> Reply {
+        match self {
+            Self::Plain(error) => Reply::Error(error),
+            Self::Detailed(error, detail) => Reply::Refused { error, detail },
+        }
+    }
+}
+
 impl<S: Storage> Controller<S> {
     /// Handles one request; `out` receives its reply (and nothing else). Notifications the
-    /// request causes are delivered by the next [`poll`](Self::poll).
+    /// request causes are delivered by the next [`poll`](Self::poll). The same as
+    /// [`begin`](Self::begin), [`Work::run`] and [`finish`](Self::finish) in a row.
     pub fn handle(
         &mut self,
         session: &mut Session,
@@ -52,14 +81,58 @@ impl<S: Storage> Controller<S> {
         rng: &mut dyn RngSource,
         out: &mut dyn FnMut(PeerMessage),
     ) {
+        if let Some(work) = self.begin(session, request, now_us, out) {
+            let done = work.run(rng);
+            self.finish(session, request, done, now_us, out);
+        }
+    }
+
+    /// Handles one request up to its cryptography: `out` receives the reply, or the
+    /// [`Work`] is handed back, to be run (outside the embedder's lock on the controller)
+    /// and then given to [`finish`](Self::finish) with the same session and request.
+    pub fn begin(
+        &mut self,
+        session: &mut Session,
+        request: &Request,
+        now_us: u64,
+        out: &mut dyn FnMut(PeerMessage),
+    ) -> Option<Work> {
         let now = self.observe(now_us);
-        let reply = match self.dispatch(session, request, now, rng) {
-            Ok(reply) => reply,
-            Err(error) => Reply::Error(error),
+        let reply = match self.dispatch(session, request, now) {
+            Ok(Step::Work(work)) => return Some(work),
+            Ok(Step::Reply(reply)) => reply,
+            Err(denied) => denied.into_reply(),
         };
         out(PeerMessage::Reply {
             id: request.id,
             reply,
+        });
+        None
+    }
+
+    /// Answers the request [`begin`](Self::begin) handed back work for, with what the work
+    /// found; `out` receives the reply.
+    pub fn finish(
+        &mut self,
+        session: &mut Session,
+        request: &Request,
+        done: Done,
+        now_us: u64,
+        out: &mut dyn FnMut(PeerMessage),
+    ) {
+        let now = self.observe(now_us);
+        let reply = match done.0 {
+            Outcome::Challenge { id, nonce } => {
+                session.nonce = Some((id, nonce));
+                Ok(Reply::Challenge { nonce })
+            }
+            Outcome::Response { epoch, channel } => {
+                self.authenticated(session, epoch, channel, now)
+            }
+        };
+        out(PeerMessage::Reply {
+            id: request.id,
+            reply: reply.unwrap_or_else(Reply::Error),
         });
     }
 
@@ -80,38 +153,43 @@ impl<S: Storage> Controller<S> {
         session: &mut Session,
         request: &Request,
         now: u64,
-        rng: &mut dyn RngSource,
-    ) -> Result<Reply, ErrorReply> {
+    ) -> Result<Step, Denied> {
         let command = &request.command;
         if !session.handshaken && !matches!(command, Command::Hello { .. }) {
             return Err(error_reply!(
                 ErrorCode::HANDSHAKE_REQUIRED,
                 "send Hello {{ protocol_version: {PROTOCOL_VERSION} }} first"
-            ));
+            )
+            .into());
         }
         if session.refuses_as_stop_only(command) {
             return Err(error_reply!(
                 ErrorCode::BUSY,
                 "no network slot is free for this connection: only Hello and EmergencyStop here"
-            ));
+            )
+            .into());
         }
         self.check_access(session, command)?;
         if !ReplyCache::applies_to(command) {
-            // Never remembered: runs every time it arrives (stops, reads, the handshake).
+            // Never remembered: runs every time it arrives (stops, reads, the handshake,
+            // authentication).
             self.admit(session, command)?;
-            return self.execute(session, request.id, command, now, rng);
+            return self.execute(session, request.id, command, now);
         }
         let fingerprint = ReplyCache::fingerprint(command);
         if let Some(reply) = self.replies.lookup(request.id, fingerprint) {
-            return Ok(reply);
+            return Ok(Step::Reply(reply));
         }
         // Not remembered: a request refused as busy may run once control is free.
         self.admit(session, command)?;
-        let reply = self
-            .execute(session, request.id, command, now, rng)
-            .unwrap_or_else(Reply::Error);
+        let reply = match self.execute(session, request.id, command, now) {
+            // Authentication only, which is never remembered.
+            Ok(Step::Work(work)) => return Ok(Step::Work(work)),
+            Ok(Step::Reply(reply)) => reply,
+            Err(denied) => denied.into_reply(),
+        };
         self.replies.remember(request.id, fingerprint, &reply);
-        Ok(reply)
+        Ok(Step::Reply(reply))
     }
 
     fn check_access(&self, session: &Session, command: &Command) -> Result<(), ErrorReply> {
@@ -140,36 +218,39 @@ impl<S: Storage> Controller<S> {
         id: RequestId,
         command: &Command,
         now: u64,
-        rng: &mut dyn RngSource,
-    ) -> Result<Reply, ErrorReply> {
-        match command {
-            Command::Hello { protocol_version } => self.hello(session, *protocol_version),
-            Command::Status => Ok(Reply::Status(self.status(session, now))),
-            Command::MoveTo { targets } => self.start_move(id, targets, false, now),
-            Command::MoveBy { deltas } => self.start_move(id, deltas, true, now),
+    ) -> Result<Step, Denied> {
+        let reply = match command {
+            Command::Hello { protocol_version } => self.hello(session, *protocol_version)?,
+            Command::AuthChallenge => return self.challenge(session, id, now),
+            Command::AuthResponse { tag, client_nonce } => {
+                return self.respond(session, tag, client_nonce, now);
+            }
+            Command::Status => Reply::Status(self.status(session, now)),
+            Command::MoveTo { targets } => self.start_move(id, targets, false, now)?,
+            Command::MoveBy { deltas } => self.start_move(id, deltas, true, now)?,
             Command::Stop => {
                 self.stop_motion(now);
-                Ok(Reply::Ok)
+                Reply::Ok
             }
             Command::EmergencyStop => {
                 self.emergency_stop();
-                Ok(Reply::Ok)
+                Reply::Ok
             }
-            Command::SetPosition { axis, position } => self.set_position(*axis, *position),
+            Command::SetPosition { axis, position } => self.set_position(*axis, *position)?,
             Command::GetConfig { axis } => {
                 self.axis_index(*axis, false)?;
                 let config = self.axes.get(usize::from(*axis)).map(|a| a.config);
                 config
                     .map(Reply::Config)
-                    .ok_or_else(|| internal("axis vanished"))
+                    .ok_or_else(|| internal("axis vanished"))?
             }
-            Command::SetConfig { axis, config } => self.set_config(*axis, config),
+            Command::SetConfig { axis, config } => self.set_config(*axis, config)?,
             Command::SaveConfig => {
                 self.idle_for_saving(command)?;
                 for axis in self.axes.iter_mut() {
                     axis.saved = axis.config;
                 }
-                self.save("configuration")
+                self.save("configuration")?
             }
             Command::ProvisionWifi { ssid, passphrase } => {
                 self.idle_for_saving(command)?;
@@ -177,33 +258,36 @@ impl<S: Storage> Controller<S> {
                     ssid: ssid.clone(),
                     passphrase: passphrase.clone(),
                 });
-                self.save("Wi-Fi credentials")
+                self.save("Wi-Fi credentials")?
             }
             Command::SetKey { key } => {
                 self.idle_for_saving(command)?;
                 self.key = Some(*key);
                 self.key_epoch = self.key_epoch.wrapping_add(1);
-                self.save("access key")
-            }
-            Command::AuthChallenge => self.challenge(session, id, now, rng),
-            Command::AuthResponse { tag, client_nonce } => {
-                self.authenticate(session, tag, client_nonce, now)
+                self.save("access key")?
             }
             Command::ClearEmergency => {
                 self.clear_emergency();
-                Ok(Reply::Ok)
+                Reply::Ok
             }
-            Command::MoveResult { request } => Ok(Reply::MoveResult(self.moves.lookup(*request))),
-        }
+            Command::MoveResult { request } => Reply::MoveResult(self.moves.lookup(*request)),
+        };
+        Ok(Step::Reply(reply))
     }
 
-    fn hello(&self, session: &mut Session, version: u16) -> Result<Reply, ErrorReply> {
+    fn hello(&self, session: &mut Session, version: u16) -> Result<Reply, Denied> {
         if version != PROTOCOL_VERSION {
             session.handshaken = false;
-            return Err(error_reply!(
+            let error = error_reply!(
                 ErrorCode::VERSION_MISMATCH,
                 "peer speaks protocol {PROTOCOL_VERSION}, client sent {version}"
-            ));
+            );
+            // A client older than `Refused` gets the error it can decode.
+            return Err(if version >= REFUSED_SINCE {
+                Denied::Detailed(error, RefusalDetail::ProtocolVersion(PROTOCOL_VERSION))
+            } else {
+                Denied::Plain(error)
+            });
         }
         session.handshaken = true;
         Ok(Reply::Hello(Identity {
@@ -217,24 +301,24 @@ impl<S: Storage> Controller<S> {
         }))
     }
 
-    /// A fresh nonce, except for a repeat of the request that drew the outstanding one (a
-    /// retransmission or a duplicated frame), which gets that same nonce: otherwise the
-    /// client would answer the first nonce while the controller expects the second.
+    /// A fresh nonce (made by the [`Work`] handed back), except for a repeat of the request
+    /// that drew the outstanding one (a retransmission or a duplicated frame), which gets
+    /// that same nonce: otherwise the client would answer the first nonce while the
+    /// controller expects the second.
     fn challenge(
         &mut self,
         session: &mut Session,
         id: RequestId,
         now: u64,
-        rng: &mut dyn RngSource,
-    ) -> Result<Reply, ErrorReply> {
+    ) -> Result<Step, Denied> {
         if self.key.is_none() {
-            return Err(no_key());
+            return Err(no_key().into());
         }
         self.check_backoff(now)?;
         if let Some((drawn_for, nonce)) = session.nonce
             && drawn_for == id
         {
-            return Ok(Reply::Challenge { nonce });
+            return Ok(Step::Reply(Reply::Challenge { nonce }));
         }
         self.count_boot().map_err(|error| {
             error_reply!(
@@ -243,7 +327,7 @@ impl<S: Storage> Controller<S> {
                 error.describe()
             )
         })?;
-        let nonce = self.nonces.draw(rng).map_err(|error| match error {
+        let draw = self.nonces.reserve().map_err(|error| match error {
             NonceError::BootNotCounted => error_reply!(
                 ErrorCode::STORAGE,
                 "no challenge before the boot counter is saved"
@@ -253,58 +337,92 @@ impl<S: Storage> Controller<S> {
                 "every challenge nonce of this boot is used: reboot the board"
             ),
         })?;
-        session.nonce = Some((id, nonce));
-        Ok(Reply::Challenge { nonce })
+        Ok(Step::Work(Work::challenge(id, draw)))
     }
 
-    /// Verifies the response to the outstanding challenge. On success the session's frames
-    /// are sealed from here on, under a key derived from both nonces; a failure is counted
-    /// and closes authentication for a while ([`crate::backoff`]).
-    fn authenticate(
+    /// Takes a response to the outstanding challenge; the [`Work`] handed back checks it.
+    fn respond(
         &mut self,
         session: &mut Session,
         tag: &[u8; KEY_LEN],
         client_nonce: &Nonce,
         now: u64,
-    ) -> Result<Reply, ErrorReply> {
+    ) -> Result<Step, Denied> {
         let Some(key) = self.key else {
-            return Err(no_key());
+            return Err(no_key().into());
         };
         // A nonce answers one response, right or wrong (or refused for the backoff).
         let Some((_, nonce)) = session.nonce.take() else {
             return Err(error_reply!(
                 ErrorCode::AUTH_FAILED,
                 "no challenge outstanding: send AuthChallenge first"
-            ));
+            )
+            .into());
         };
         self.check_backoff(now)?;
-        if verify_tag(&key, &nonce, client_nonce, tag) {
-            self.auth_backoff.succeeded();
-            session.authenticated = Some(self.key_epoch);
-            let channel = session_key(&key, &nonce, client_nonce);
-            session
-                .inbound()
-                .install(Opener::new(channel, Direction::ToController), true);
-            session.sealer = Some(Sealer::new(channel, Direction::ToHost));
-            Ok(Reply::Ok)
-        } else {
-            self.auth_backoff.failed(now);
+        Ok(Step::Work(Work::response(
+            key,
+            self.key_epoch,
+            nonce,
+            *client_nonce,
+            *tag,
+        )))
+    }
+
+    /// Applies the check of a response against the key of generation `epoch`: on success
+    /// the session's frames are sealed from here on, under `channel`, the key derived from
+    /// both nonces; a failure is counted and closes authentication for a while
+    /// ([`crate::backoff`]).
+    fn authenticated(
+        &mut self,
+        session: &mut Session,
+        epoch: u32,
+        channel: Option<[u8; KEY_LEN]>,
+        now: u64,
+    ) -> Result<Reply, ErrorReply> {
+        if self.key.is_none() || epoch != self.key_epoch {
+            // Checked against a key replaced meanwhile (over the serial link).
             session.authenticated = None;
-            Err(error_reply!(
+            return Err(error_reply!(
                 ErrorCode::AUTH_FAILED,
-                "challenge response does not verify (wrong key?)"
-            ))
+                "the access key changed while the response was checked: authenticate again"
+            ));
+        }
+        match channel {
+            Some(channel) => {
+                self.auth_backoff.succeeded();
+                session.authenticated = Some(epoch);
+                session
+                    .inbound()
+                    .install(Opener::new(channel, Direction::ToController), true);
+                session.sealer = Some(Sealer::new(channel, Direction::ToHost));
+                Ok(Reply::Ok)
+            }
+            None => {
+                self.auth_backoff.failed(now);
+                session.authenticated = None;
+                Err(error_reply!(
+                    ErrorCode::AUTH_FAILED,
+                    "challenge response does not verify (wrong key?)"
+                ))
+            }
         }
     }
 
-    /// Refuses an authentication attempt while the backoff after failures runs.
-    fn check_backoff(&self, now: u64) -> Result<(), ErrorReply> {
+    /// Refuses an authentication attempt while the backoff after failures runs, saying
+    /// how long it has to wait.
+    fn check_backoff(&self, now: u64) -> Result<(), Denied> {
         match self.auth_backoff.wait_us(now) {
-            Some(wait_us) => Err(error_reply!(
-                ErrorCode::AUTH_BACKOFF,
-                "authentication failed just before: try again in {} ms",
-                wait_us.div_ceil(1000)
-            )),
+            Some(wait_us) => {
+                let wait_ms = wait_us.div_ceil(1000);
+                Err(Denied::Detailed(
+                    error_reply!(
+                        ErrorCode::AUTH_BACKOFF,
+                        "authentication failed just before: try again in {wait_ms} ms"
+                    ),
+                    RefusalDetail::RetryAfterMs(u32::try_from(wait_ms).unwrap_or(u32::MAX)),
+                ))
+            }
             None => Ok(()),
         }
     }

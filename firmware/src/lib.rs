@@ -10,7 +10,9 @@
 //! through the embedder's [`Port`]; network connections get their places from an
 //! [`admission::Admissions`] table. Underneath, what a `Connection` and its `Port` do:
 //! - every decoded request goes to [`Controller::handle`], whose `out` receives exactly one
-//!   message, the reply, for that session;
+//!   message, the reply, for that session (or to [`Controller::begin`] and
+//!   [`Controller::finish`], with the request's cryptography run between them outside the
+//!   embedder's lock on the controller: [`crypto`]);
 //! - frames are decoded against the session's [`Session::inbound`] (on an authenticated
 //!   network session only sealed frames pass); a frame that could not be decoded or was
 //!   refused goes to [`Controller::link_error`];
@@ -35,6 +37,7 @@ pub mod config;
 pub mod connection;
 mod control;
 mod controller;
+pub mod crypto;
 mod dispatch;
 pub mod driver;
 pub mod gear;
@@ -53,9 +56,11 @@ mod slots;
 pub mod storage;
 #[cfg(test)]
 mod tests;
+pub mod timeline;
 
 pub use connection::{Connection, Deadlines, Port, Received};
 pub use controller::{BoardInfo, Controller};
+pub use crypto::{Done, Work};
 pub use driver::{StepDirection, StepDriver, half_step_coils};
 pub use session::{LinkKind, RngSource, Session};
 pub use storage::{RamStorage, Storage, StorageError};

@@ -69,29 +69,51 @@ impl NonceIssuer {
         self.boot = Some(boot);
     }
 
-    /// The next nonce, mixing in entropy from `rng`.
-    pub fn draw(&mut self, rng: &mut dyn RngSource) -> Result<Nonce, NonceError> {
+    /// Takes the next draw counter: the nonce it makes ([`Draw::nonce`]) is this boot's
+    /// next, mixed with fresh entropy when it is made.
+    pub fn reserve(&mut self) -> Result<Draw, NonceError> {
         let boot = self.boot.ok_or(NonceError::BootNotCounted)?;
         if self.drawn >= DRAWS_END {
             return Err(NonceError::Exhausted);
         }
-        let draw = self.drawn.to_le_bytes();
+        let draw = self.drawn;
         self.drawn += 1;
+        Ok(Draw {
+            board_id: self.board_id,
+            boot,
+            draw,
+        })
+    }
+}
+
+/// One nonce's counters, reserved and not made yet (the making hashes: see
+/// [`crate::crypto`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Draw {
+    board_id: u64,
+    boot: u32,
+    draw: u64,
+}
+
+impl Draw {
+    /// The nonce, mixing in entropy from `rng`.
+    pub fn nonce(&self, rng: &mut dyn RngSource) -> Nonce {
+        let draw = self.draw.to_le_bytes();
         let mut entropy = [0u8; 32];
         rng.fill(&mut entropy);
         let mix = Sha256::new()
             .chain_update(CONTEXT)
             .chain_update(self.board_id.to_le_bytes())
-            .chain_update(boot.to_le_bytes())
+            .chain_update(self.boot.to_le_bytes())
             .chain_update(&draw[..DRAW_LEN])
             .chain_update(entropy)
             .finalize();
         let mut nonce = [0u8; NONCE_LEN];
         let (counters, mixed) = nonce.split_at_mut(BOOT_LEN + DRAW_LEN);
-        counters[..BOOT_LEN].copy_from_slice(&boot.to_le_bytes());
+        counters[..BOOT_LEN].copy_from_slice(&self.boot.to_le_bytes());
         counters[BOOT_LEN..].copy_from_slice(&draw[..DRAW_LEN]);
         mixed.copy_from_slice(&mix[..MIX_LEN]);
-        Ok(nonce)
+        nonce
     }
 }
 
@@ -111,9 +133,9 @@ mod tests {
     #[test]
     fn nothing_is_issued_before_the_boot_is_counted() {
         let mut nonces = NonceIssuer::new(1);
-        assert_eq!(nonces.draw(&mut Stuck), Err(NonceError::BootNotCounted));
+        assert_eq!(nonces.reserve(), Err(NonceError::BootNotCounted));
         nonces.counted(1);
-        assert!(nonces.draw(&mut Stuck).is_ok());
+        assert!(nonces.reserve().is_ok());
     }
 
     #[test]
@@ -124,7 +146,7 @@ mod tests {
                 let mut nonces = NonceIssuer::new(board);
                 nonces.counted(boot);
                 for _ in 0..100 {
-                    let nonce = nonces.draw(&mut Stuck).unwrap();
+                    let nonce = nonces.reserve().unwrap().nonce(&mut Stuck);
                     assert!(seen.insert(nonce), "repeated {nonce:?}");
                 }
             }
@@ -135,8 +157,8 @@ mod tests {
     fn the_counters_are_in_the_clear() {
         let mut nonces = NonceIssuer::new(7);
         nonces.counted(0x0102_0304);
-        nonces.draw(&mut Stuck).unwrap();
-        let second = nonces.draw(&mut Stuck).unwrap();
+        nonces.reserve().unwrap();
+        let second = nonces.reserve().unwrap().nonce(&mut Stuck);
         assert_eq!(second[..BOOT_LEN], [4, 3, 2, 1]);
         assert_eq!(second[BOOT_LEN..BOOT_LEN + DRAW_LEN], [1, 0, 0, 0, 0, 0]);
     }
@@ -146,7 +168,7 @@ mod tests {
         let mut nonces = NonceIssuer::new(7);
         nonces.counted(1);
         nonces.drawn = DRAWS_END - 1;
-        assert!(nonces.draw(&mut Stuck).is_ok());
-        assert_eq!(nonces.draw(&mut Stuck), Err(NonceError::Exhausted));
+        assert!(nonces.reserve().is_ok());
+        assert_eq!(nonces.reserve(), Err(NonceError::Exhausted));
     }
 }

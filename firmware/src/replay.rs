@@ -31,7 +31,8 @@ impl Cached {
             | Reply::Status(_)
             | Reply::Config(_)
             | Reply::Challenge { .. }
-            | Reply::MoveResult(_) => None,
+            | Reply::MoveResult(_)
+            | Reply::Refused { .. } => None,
         }
     }
 

@@ -121,7 +121,8 @@ async fn a_mismatched_version_is_refused_by_the_peer_naming_both_versions() {
     )
     .await;
     match raw.reply(1).await {
-        Reply::Error(error) => {
+        Reply::Refused { error, detail } => {
+            assert_eq!(detail, RefusalDetail::ProtocolVersion(PROTOCOL_VERSION));
             assert_eq!(error.code, ErrorCode::VERSION_MISMATCH);
             assert!(
                 error.reason.contains(&PROTOCOL_VERSION.to_string()),
@@ -185,7 +186,13 @@ async fn the_client_refuses_a_peer_of_another_version() {
         .unwrap();
     let text = error.to_string();
     assert!(
-        matches!(error, ClientError::VersionMismatch { theirs: 99, .. }),
+        matches!(
+            error,
+            ClientError::VersionMismatch {
+                theirs: Some(99),
+                ..
+            }
+        ),
         "{text}"
     );
     assert!(

@@ -17,6 +17,7 @@ fn status_message() -> PeerMessage {
         },
         faults: Faults(0),
         powered: true,
+        underruns: 0,
     };
     let mut axes = heapless::Vec::new();
     for _ in 0..MAX_AXES {

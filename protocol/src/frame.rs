@@ -26,12 +26,30 @@ use crate::seal::{Accepted, Inbound, SEAL_LEN, Sealer};
 /// CRC-32C. On a host, slice-by-16: a 16 KiB table, several times faster than byte-wise.
 /// On a microcontroller (no OS), byte-wise with a 1 KiB table: the table is read on every
 /// frame and lives in flash, and slice-by-16's would fill the RP2040's and RP2350's whole
-/// 16 KiB XIP cache, evicting the motion code.
-#[cfg(not(target_os = "none"))]
+/// 16 KiB XIP cache, evicting the motion code. Cycles per frame of each on the emulator
+/// image: docs/results.md, measured with builds that pick another one by
+/// `--cfg optalign_crc="bitwise"` (no table) or `"slice16"`.
+#[cfg(any(
+    all(not(target_os = "none"), not(optalign_crc = "bitwise")),
+    optalign_crc = "slice16"
+))]
 type CrcTable = Table<16>;
-#[cfg(target_os = "none")]
+#[cfg(all(
+    target_os = "none",
+    not(optalign_crc = "bitwise"),
+    not(optalign_crc = "slice16")
+))]
 type CrcTable = Table<1>;
+#[cfg(optalign_crc = "bitwise")]
+type CrcTable = crc::NoTable;
 const CRC32C: Crc<u32, CrcTable> = Crc::<u32, CrcTable>::new(&CRC_32_ISCSI);
+
+/// The CRC of a frame's payload, both ways. Kept out of line: one copy of the loop for
+/// encoding and decoding, and a symbol the emulator harness can count cycles in.
+#[inline(never)]
+fn frame_crc(payload: &[u8]) -> u32 {
+    CRC32C.checksum(payload)
+}
 
 /// Why a frame could not be produced or read.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -130,7 +148,7 @@ fn encode<T: Serialize>(
         raw[len..len + SEAL_LEN].copy_from_slice(&seal);
         len += SEAL_LEN;
     }
-    let crc = CRC32C.checksum(&raw[..len]);
+    let crc = frame_crc(&raw[..len]);
     raw[len..len + CRC_LEN].copy_from_slice(&crc.to_le_bytes());
     let stuffed = cobs::try_encode(&raw[..len + CRC_LEN], &mut out[..MAX_FRAME - 1])
         .map_err(|_| FrameError::TooLargeToSend)?;
@@ -276,7 +294,7 @@ fn unstuff(stuffed: &mut [u8]) -> Result<&[u8], FrameError> {
     let (payload, trailer) = stuffed[..len].split_at(len - CRC_LEN);
     let mut crc = [0u8; CRC_LEN];
     crc.copy_from_slice(trailer);
-    if CRC32C.checksum(payload) != u32::from_le_bytes(crc) {
+    if frame_crc(payload) != u32::from_le_bytes(crc) {
         return Err(FrameError::BadCrc);
     }
     Ok(payload)

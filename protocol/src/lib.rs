@@ -16,5 +16,5 @@ pub mod seal;
 
 pub use error::{ErrorCode, ErrorReply};
 pub use frame::{FrameDecoder, FrameError, encode_frame, encode_sealed_frame};
-pub use limits::{MAX_AXES, MAX_FRAME, MAX_PAYLOAD, PROTOCOL_VERSION};
+pub use limits::{MAX_AXES, MAX_FRAME, MAX_PAYLOAD, PROTOCOL_VERSION, REFUSED_SINCE};
 pub use message::*;

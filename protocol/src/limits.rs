@@ -3,9 +3,14 @@
 /// The protocol version spoken by this build. Peers refuse a handshake with any other.
 ///
 /// Bump it whenever the encoding of any message changes. `Command::Hello` and the error
-/// reply are frozen, and a peer answers a `Hello` of another version with that error (never
-/// with an `Identity`), so a mismatch can always be reported.
-pub const PROTOCOL_VERSION: u16 = 4;
+/// replies are frozen, and a peer answers a `Hello` of another version with one of them
+/// (never with an `Identity`), so a mismatch can always be reported: `Reply::Refused`
+/// naming its own version to a client of version [`REFUSED_SINCE`] or later, the plain
+/// `Reply::Error` to an older one, which does not know `Refused`.
+pub const PROTOCOL_VERSION: u16 = 5;
+
+/// The first version that knows `Reply::Refused`.
+pub const REFUSED_SINCE: u16 = 5;
 
 /// Most axes one controller exposes (a Pico W drives four; the simulated peer up to eight).
 pub const MAX_AXES: usize = 8;

@@ -5,8 +5,9 @@
 //! only ever appended, and any change to an existing layout bumps
 //! [`PROTOCOL_VERSION`](crate::PROTOCOL_VERSION). `Command::Hello` is variant 0 and its
 //! layout is frozen, and a peer answers a `Hello` of another version with an error reply
-//! (frozen too) rather than an [`Identity`], so that two different versions can always
-//! tell each other apart.
+//! (`Reply::Error` or, from version 5 on, `Reply::Refused` with
+//! [`RefusalDetail::ProtocolVersion`]: frozen too) rather than an [`Identity`], so that two
+//! different versions can always tell each other apart.
 
 use heapless::{String, Vec};
 use serde::{Deserialize, Serialize};
@@ -180,6 +181,33 @@ pub enum Reply {
     Error(ErrorReply),
     /// What became of a move (the answer to [`Command::MoveResult`]).
     MoveResult(MoveResult),
+    /// An error with a field a program acts on, where reading the reason would be guessing
+    /// (version 5): the wait of `auth-backoff`, the controller's version on
+    /// `version-mismatch`. Its layout and [`RefusalDetail::ProtocolVersion`] are frozen like
+    /// `Error`'s.
+    Refused {
+        error: ErrorReply,
+        detail: RefusalDetail,
+    },
+}
+
+impl Reply {
+    /// The error this reply carries, plain or with its detail.
+    pub fn error(&self) -> Option<&ErrorReply> {
+        match self {
+            Self::Error(error) | Self::Refused { error, .. } => Some(error),
+            _ => None,
+        }
+    }
+}
+
+/// What a [`Reply::Refused`] tells beyond its error code. Variants are only appended.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub enum RefusalDetail {
+    /// The controller speaks this protocol version (with `version-mismatch`).
+    ProtocolVersion(u16),
+    /// Try again after this many milliseconds (with `auth-backoff`).
+    RetryAfterMs(u32),
 }
 
 /// What became of the move a request started, as far as the controller remembers.
@@ -315,6 +343,10 @@ pub struct AxisStatus {
     pub faults: Faults,
     /// Whether the coils are energised.
     pub powered: bool,
+    /// Times the axis's step engine ran out of words in the middle of a move since
+    /// start-up (version 5): the steps after each came late, none was lost. 0 on a healthy
+    /// controller; the simulated peer has no step engine and reports 0.
+    pub underruns: u32,
 }
 
 /// Direction of travel.

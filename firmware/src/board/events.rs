@@ -2,21 +2,19 @@
 //!
 //! [`EventSink`] is the [`StepDriver`] the motion task hands to `Controller::poll`. The
 //! motion task polls at each deadline exactly and tells the sink that time first, so every
-//! step and every coil power change becomes an [`Event`] with its exact time, queued per
-//! axis for the step back-end that plays it out.
+//! step and every coil power change becomes an [`Event`] with its exact time, played on
+//! the axis's timeline by the step engine the sink owns ([`StepEngine`]).
 //!
 //! An axis has four consecutive GPIOs; what they carry depends on its configured driver:
 //! - ULN2003 (`UnipolarHalfStep`): IN1..IN4 = the half-step coil pattern; all low = off.
 //! - STEP/DIR: bit 0 STEP, bit 1 DIR (high = forward), bit 2 EN (active low, so high =
 //!   coils off), bit 3 unused (low). A step is a [`PULSE_US`] high pulse on STEP, with DIR
-//!   settled [`SETUP_US`] before it; the back-ends generate both from one pulse event.
+//!   settled [`SETUP_US`] before it; the step engine makes both from one pulse event.
 
-use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
-use embassy_sync::channel::Channel;
 use optalign_protocol::DriverKind;
 use portable_atomic::{AtomicU32, AtomicU64, Ordering};
 
-use super::log::warn;
+use super::pio_steps::StepEngine;
 use super::{AXES, Store};
 use crate::Controller;
 use crate::driver::{StepDirection, StepDriver, half_step_coils};
@@ -42,19 +40,10 @@ pub struct Event {
     pub pulse: bool,
 }
 
-/// Events an axis can have queued: the lookahead (2 ms) at the fastest configurable rate
-/// (20,000 steps/s) is 40, plus power changes.
-pub const QUEUE_LEN: usize = 64;
-
-pub type Queue = Channel<CriticalSectionRawMutex, Event, QUEUE_LEN>;
-
-/// One queue per axis, from the motion task to that axis's step back-end.
-pub static QUEUES: [Queue; AXES as usize] = [const { Channel::new() }; AXES as usize];
-
-/// The time of the latest event queued: every back-end is idle once it has passed.
+/// The time of the latest event queued: every axis is at rest once it has passed.
 pub static LAST_EVENT_US: AtomicU64 = AtomicU64::new(0);
 
-/// Events dropped because a queue was full (a bug if it ever counts).
+/// Step engine words dropped because an axis's ring was full (a bug if it ever counts).
 pub static DROPPED: AtomicU32 = AtomicU32::new(0);
 
 /// What the sink knows about one axis.
@@ -83,20 +72,15 @@ impl AxisPins {
     }
 }
 
-/// Turns the core's steps and power changes into queued events.
+/// Turns the core's steps and power changes into events on the step engine.
 pub struct EventSink {
     at_us: u64,
     axes: [AxisPins; AXES as usize],
-}
-
-impl Default for EventSink {
-    fn default() -> Self {
-        Self::new()
-    }
+    engine: StepEngine,
 }
 
 impl EventSink {
-    pub const fn new() -> Self {
+    pub fn new(engine: StepEngine) -> Self {
         Self {
             at_us: 0,
             axes: [AxisPins {
@@ -105,7 +89,13 @@ impl EventSink {
                 coil_steps: 0,
                 forward: true,
             }; AXES as usize],
+            engine,
         }
+    }
+
+    /// The step engine, for the motion task's round (underruns, hand-over).
+    pub fn engine(&mut self) -> &mut StepEngine {
+        &mut self.engine
     }
 
     /// Sets the time of what the coming poll outputs, and takes each axis's driver kind
@@ -132,13 +122,7 @@ impl EventSink {
             pattern,
             pulse,
         };
-        let Some(queue) = QUEUES.get(usize::from(axis)) else {
-            return;
-        };
-        if queue.try_send(event).is_err() {
-            DROPPED.fetch_add(1, Ordering::Relaxed);
-            warn!("axis {}: step queue full, event dropped", axis);
-        }
+        self.engine.play(axis, event);
         LAST_EVENT_US.fetch_max(self.at_us, Ordering::Release);
     }
 }

@@ -4,9 +4,9 @@
 //! module).
 //!
 //! Two executors: the thread-mode one runs the links, Wi-Fi, flash writes and the
-//! watchdog; a high-priority interrupt executor (SWI_IRQ_1) runs the motion task and the
-//! PIO feeders, so no network or USB work can delay a step. Pin map and wiring:
-//! `docs/hardware.md`.
+//! watchdog; a high-priority interrupt executor (SWI_IRQ_1) runs the motion task alone,
+//! which hands the steps to the PIO state machines through DMA ([`super::pio_steps`]), so
+//! no network or USB work can delay a step. Pin map and wiring: `docs/hardware.md`.
 
 use core::cell::RefCell;
 
@@ -14,48 +14,26 @@ use defmt::{info, unwrap, warn};
 use embassy_executor::{InterruptExecutor, Spawner};
 use embassy_rp::interrupt;
 use embassy_rp::interrupt::{InterruptExt, Priority};
-use embassy_rp::pio;
 use embassy_rp::watchdog::{ResetReason, Watchdog};
 use embassy_sync::blocking_mutex::Mutex;
 use optalign_protocol::Capabilities;
 use static_cell::StaticCell;
 
-use super::events::QUEUES;
+use super::events::EventSink;
 use super::flash::{BoardFlash, FlashStorage};
-use super::pio_steps::{Feeder, StepProgram};
 use super::rng::Nonces;
-use super::this::{self, Irqs, StepPio};
+use super::this::{self, Irqs};
 use super::wifi::Radio;
 use super::{AXES, SharedCore, flash, motion, now_us, tcp, usb, watchdog, wifi};
 use crate::{BoardInfo, Controller};
 
-/// Runs the motion task and the step feeders above everything in thread mode.
+/// Runs the motion task above everything in thread mode.
 static MOTION: InterruptExecutor = InterruptExecutor::new();
 
 #[interrupt]
 unsafe fn SWI_IRQ_1() {
     // SAFETY: only this interrupt polls the executor, after `start`.
     unsafe { MOTION.on_interrupt() }
-}
-
-#[embassy_executor::task]
-async fn axis0(feeder: Feeder<'static, StepPio, 0>) -> ! {
-    feeder.run().await
-}
-
-#[embassy_executor::task]
-async fn axis1(feeder: Feeder<'static, StepPio, 1>) -> ! {
-    feeder.run().await
-}
-
-#[embassy_executor::task]
-async fn axis2(feeder: Feeder<'static, StepPio, 2>) -> ! {
-    feeder.run().await
-}
-
-#[embassy_executor::task]
-async fn axis3(feeder: Feeder<'static, StepPio, 3>) -> ! {
-    feeder.run().await
 }
 
 /// Brings the board up and starts every task; returns once the links are served.
@@ -68,9 +46,9 @@ pub async fn run(spawner: Spawner) {
     dog.pause_on_debug(true);
     dog.start(watchdog::BOOT_TIMEOUT);
 
-    // NVIC priorities, P0 highest: step timing first; the links only wake thread mode.
+    // NVIC priorities, P0 highest: the alarm that wakes the motion task, then the motion
+    // task; the links only wake thread mode.
     this::TIME_IRQ.set_priority(Priority::P0);
-    interrupt::PIO1_IRQ_0.set_priority(Priority::P0);
     interrupt::SWI_IRQ_1.set_priority(Priority::P1);
     interrupt::PIO0_IRQ_0.set_priority(Priority::P2);
     interrupt::USBCTRL_IRQ.set_priority(Priority::P2);
@@ -110,47 +88,10 @@ pub async fn run(spawner: Spawner) {
         info.firmware_version, info.board, info.board_id
     );
 
-    // Steps: one state machine per axis, on GP2-5, GP6-9, GP10-13, GP14-17.
+    // Steps: one state machine per axis, on GP2-5, GP6-9, GP10-13, GP14-17, fed by DMA.
     let motion_spawner = MOTION.start(interrupt::SWI_IRQ_1);
-    let pio::Pio {
-        mut common,
-        sm0,
-        sm1,
-        sm2,
-        sm3,
-        ..
-    } = pio::Pio::new(p.PIO1, Irqs);
-    let program = StepProgram::load(&mut common);
-    let pins0 = [
-        common.make_pio_pin(p.PIN_2),
-        common.make_pio_pin(p.PIN_3),
-        common.make_pio_pin(p.PIN_4),
-        common.make_pio_pin(p.PIN_5),
-    ];
-    let pins1 = [
-        common.make_pio_pin(p.PIN_6),
-        common.make_pio_pin(p.PIN_7),
-        common.make_pio_pin(p.PIN_8),
-        common.make_pio_pin(p.PIN_9),
-    ];
-    let pins2 = [
-        common.make_pio_pin(p.PIN_10),
-        common.make_pio_pin(p.PIN_11),
-        common.make_pio_pin(p.PIN_12),
-        common.make_pio_pin(p.PIN_13),
-    ];
-    let pins3 = [
-        common.make_pio_pin(p.PIN_14),
-        common.make_pio_pin(p.PIN_15),
-        common.make_pio_pin(p.PIN_16),
-        common.make_pio_pin(p.PIN_17),
-    ];
-    let [q0, q1, q2, q3] = &QUEUES;
-    motion_spawner.spawn(unwrap!(axis0(Feeder::new(sm0, &program, pins0, q0))));
-    motion_spawner.spawn(unwrap!(axis1(Feeder::new(sm1, &program, pins1, q1))));
-    motion_spawner.spawn(unwrap!(axis2(Feeder::new(sm2, &program, pins2, q2))));
-    motion_spawner.spawn(unwrap!(axis3(Feeder::new(sm3, &program, pins3, q3))));
-    motion_spawner.spawn(unwrap!(motion::run(core)));
+    let engine = unwrap!(crate::step_engine!(p, p.PIO1, Irqs));
+    motion_spawner.spawn(unwrap!(motion::run(core, EventSink::new(engine))));
 
     spawner.spawn(unwrap!(flash::writer(core)));
     spawner.spawn(unwrap!(watchdog::run(dog)));

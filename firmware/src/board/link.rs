@@ -65,11 +65,18 @@ impl Port for BoardPort {
         // At the lookahead horizon, where the motion task keeps the core's clock: a move
         // planned now starts after everything already queued, and its first pin change is
         // queued ahead of its time like every later one.
-        let now = now_us() + LOOKAHEAD_US;
-        self.0.lock(|cell| {
-            cell.borrow_mut()
-                .handle(session, request, now, &mut Nonces, out)
-        });
+        let horizon = || now_us() + LOOKAHEAD_US;
+        let work = self
+            .0
+            .lock(|cell| cell.borrow_mut().begin(session, request, horizon(), out));
+        // Authentication's hashing, with the core free for the motion task meanwhile.
+        if let Some(work) = work {
+            let done = work.run(&mut Nonces);
+            self.0.lock(|cell| {
+                cell.borrow_mut()
+                    .finish(session, request, done, horizon(), out)
+            });
+        }
         WAKE.signal(());
     }
 

@@ -1,8 +1,10 @@
 //! The motion task: runs the core's time-driven side a fixed lookahead ahead of real time.
 //!
 //! On every wake-up it polls the core at each deadline up to `now + LOOKAHEAD_US`, each at
-//! its exact time, so the step back-ends receive every pin change [`LOOKAHEAD_US`] before
-//! it is due and can time it in hardware, unaffected by anything the CPU does meanwhile.
+//! its exact time, so the step engine ([`super::pio_steps`]) receives every pin change
+//! [`LOOKAHEAD_US`] before it is due and times it in hardware, unaffected by anything the
+//! CPU does meanwhile; at the end of each round it hands the engine's words to the DMA,
+//! and at the start of each it reads the engine's underruns into the core (`Status`).
 //! It then polls once at that horizon, which moves the core's clock there, and the links
 //! hand requests to the core at the horizon too: whatever a request plans next starts
 //! after everything already queued, so queued steps are never taken back and positions
@@ -14,8 +16,11 @@
 //!   never arrives before the last step has been made;
 //! - `Status` describes the state at the horizon.
 //!
-//! The task runs on the high-priority interrupt executor; requests wake it through
-//! [`WAKE`] so a new move or an emergency stop is acted on at once.
+//! The task runs alone on the high-priority interrupt executor, above everything but the
+//! time driver's alarm; requests wake it through [`WAKE`] so a new move or an emergency
+//! stop is acted on at once. Its one deadline: to run again before the words it handed
+//! over have been played, [`LOOKAHEAD_US`] after it ran; it runs every
+//! [`MOVING_TICK_US`] while a move runs.
 
 use embassy_futures::select::select;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
@@ -24,7 +29,7 @@ use embassy_sync::signal::Signal;
 use embassy_time::{Instant, Timer};
 use heapless::Deque;
 use optalign_protocol::{Notification, PeerMessage};
-use portable_atomic::{AtomicBool, AtomicU64, Ordering};
+use portable_atomic::{AtomicBool, Ordering};
 
 use super::events::EventSink;
 use super::link::MAX_SESSIONS;
@@ -33,7 +38,7 @@ use super::{SharedCore, now_us, watchdog};
 /// How far ahead of real time the core runs.
 pub const LOOKAHEAD_US: u64 = 2_000;
 
-/// Wake-up period while a move runs (keeps [`KNOWN_UNTIL_US`] ahead for the back-ends).
+/// Wake-up period while a move runs (keeps the step engine's words ahead of it).
 const MOVING_TICK_US: u64 = LOOKAHEAD_US / 2;
 
 /// Wake-up period when idle (the watchdog check-in).
@@ -48,9 +53,6 @@ const HELD: usize = 16;
 /// Set by the links after each request: deadlines may have changed.
 pub static WAKE: Signal<CriticalSectionRawMutex, ()> = Signal::new();
 
-/// Every pin change before this time (µs since boot) is queued.
-pub static KNOWN_UNTIL_US: AtomicU64 = AtomicU64::new(0);
-
 /// A move is running or waiting to run.
 pub static ENGAGED: AtomicBool = AtomicBool::new(false);
 
@@ -62,13 +64,13 @@ pub static NOTES: PubSubChannel<CriticalSectionRawMutex, Notification, 8, MAX_SE
     PubSubChannel::new();
 
 #[embassy_executor::task]
-pub async fn run(core: &'static SharedCore) -> ! {
-    let mut sink = EventSink::new();
+pub async fn run(core: &'static SharedCore, mut sink: EventSink) -> ! {
     let mut held: Deque<(u64, Notification), HELD> = Deque::new();
     let publisher = NOTES.immediate_publisher();
     let mut clock = now_us();
     loop {
         watchdog::check_in(watchdog::MOTION);
+        let underruns = sink.engine().check();
         let horizon = now_us().saturating_add(LOOKAHEAD_US).max(clock);
         let mut polls = 0;
         while clock < horizon && polls < POLLS_PER_ROUND {
@@ -91,13 +93,15 @@ pub async fn run(core: &'static SharedCore) -> ! {
                 clock = at;
             });
         }
-        KNOWN_UNTIL_US.store(clock, Ordering::Release);
         let (deadline, moving) = core.lock(|cell| {
-            let core = cell.borrow();
+            let mut core = cell.borrow_mut();
+            core.record_underruns(&underruns);
             FAULT.store(core.has_faults(), Ordering::Relaxed);
             (core.next_deadline_us(), core.is_moving())
         });
         ENGAGED.store(moving, Ordering::Release);
+        // Every change before `clock` is queued: pad up to it while a move runs.
+        sink.engine().commit(clock, moving);
         let now = now_us();
         while let Some(&(at, _)) = held.front()
             && at <= now

@@ -4,7 +4,7 @@
 use optalign_protocol::auth::challenge_tag;
 use optalign_protocol::{
     AxisConfig, BacklashMode, Capabilities, Command, ErrorCode, FrameError, MoveOutcome,
-    PROTOCOL_VERSION, PeerMessage, Reply, RequestId, SoftLimits,
+    PROTOCOL_VERSION, PeerMessage, REFUSED_SINCE, RefusalDetail, Reply, RequestId, SoftLimits,
 };
 
 use super::rig::{CAPABILITIES, Rig, values};
@@ -19,16 +19,21 @@ pub(super) fn plain() -> AxisConfig {
 }
 
 pub(super) fn code(reply: &Reply) -> Option<ErrorCode> {
-    match reply {
-        Reply::Error(error) => Some(error.code),
-        _ => None,
-    }
+    reply.error().map(|error| error.code)
 }
 
 pub(super) fn reason(reply: &Reply) -> String {
+    match reply.error() {
+        Some(error) => error.reason.to_string(),
+        None => panic!("expected an error, got {reply:?}"),
+    }
+}
+
+/// The detail of a [`Reply::Refused`].
+pub(super) fn detail(reply: &Reply) -> Option<RefusalDetail> {
     match reply {
-        Reply::Error(error) => error.reason.to_string(),
-        other => panic!("expected an error, got {other:?}"),
+        Reply::Refused { detail, .. } => Some(*detail),
+        _ => None,
     }
 }
 
@@ -98,6 +103,23 @@ fn hello_first_and_versions_must_match() {
     assert_eq!(
         reason(&reply),
         format!("peer speaks protocol {PROTOCOL_VERSION}, client sent {wrong}")
+    );
+    // The controller's version as a field, for a client that knows `Refused`...
+    assert_eq!(
+        detail(&reply),
+        Some(RefusalDetail::ProtocolVersion(PROTOCOL_VERSION))
+    );
+    // ... and the plain error, which every version decodes, for an older one.
+    let reply = rig.send_on(
+        &mut session,
+        RequestId(20),
+        Command::Hello {
+            protocol_version: REFUSED_SINCE - 1,
+        },
+    );
+    assert!(
+        matches!(&reply, Reply::Error(error) if error.code == ErrorCode::VERSION_MISMATCH),
+        "{reply:?}"
     );
     assert!(!session.is_handshaken());
     let hello = Command::Hello {

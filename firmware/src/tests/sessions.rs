@@ -4,12 +4,12 @@
 use optalign_protocol::auth::session_key;
 use optalign_protocol::seal::{Direction, Inbound, Opener, Sealer};
 use optalign_protocol::{
-    Command, ErrorCode, FrameDecoder, FrameError, MAX_FRAME, PROTOCOL_VERSION, PeerMessage, Reply,
-    Request, RequestId, encode_frame, encode_sealed_frame,
+    Command, ErrorCode, FrameDecoder, FrameError, MAX_FRAME, PROTOCOL_VERSION, PeerMessage,
+    RefusalDetail, Reply, Request, RequestId, encode_frame, encode_sealed_frame,
 };
 
 use super::dispatch::{
-    CLIENT_NONCE, KEY, a_move, authenticate, code, network, plain, reason, response,
+    CLIENT_NONCE, KEY, a_move, authenticate, code, detail, network, plain, reason, response,
 };
 use super::rig::Rig;
 use crate::admission::{MAX_SLOTS, Standing, Ticket};
@@ -187,8 +187,11 @@ fn failed_authentications_are_counted_and_close_authentication_for_a_growing_whi
     let reply = rig.send_on(&mut honest, RequestId(3), response(&KEY, &early));
     assert_eq!(code(&reply), Some(ErrorCode::AUTH_BACKOFF));
     assert!(reason(&reply).contains("try again in 250 ms"), "{reply:?}");
+    assert_eq!(detail(&reply), Some(RefusalDetail::RetryAfterMs(250)));
+    rig.now += 100_000;
     let reply = rig.send_on(&mut guesser, RequestId(4), Command::AuthChallenge);
     assert_eq!(code(&reply), Some(ErrorCode::AUTH_BACKOFF));
+    assert_eq!(detail(&reply), Some(RefusalDetail::RetryAfterMs(150)));
 
     // The second failure in a row doubles the delay.
     rig.now += FIRST_DELAY_US;
@@ -453,4 +456,79 @@ fn a_lobby_connection_may_only_shake_hands_and_stop_and_is_closed_after_anything
     assert!(matches!(replied(&out)[..], [Reply::Status(_)]), "{out:?}");
     assert!(!closed);
     assert_eq!(port.standings.last(), Some(&(SLOT, Standing::Spoke)));
+}
+
+/// Sends `command` on `session` through the two halves, running the cryptography with the
+/// controller untouched in between, and `between` then; the reply.
+fn split(
+    rig: &mut Rig,
+    session: &mut Session,
+    id: u32,
+    command: Command,
+    between: impl FnOnce(&mut Rig),
+) -> Reply {
+    let request = Request {
+        id: RequestId(id),
+        command,
+    };
+    let mut replies = Vec::new();
+    let work = rig
+        .controller
+        .begin(session, &request, rig.now, &mut |m| replies.push(m));
+    let work = work.expect("authentication leaves work to do");
+    assert!(replies.is_empty(), "no reply before the work is done");
+    let done = work.run(&mut rig.rng);
+    between(rig);
+    rig.controller
+        .finish(session, &request, done, rig.now, &mut |m| replies.push(m));
+    match replies.as_slice() {
+        [PeerMessage::Reply { id: got, reply }] if got.0 == id => reply.clone(),
+        other => panic!("expected one reply to {id}: {other:?}"),
+    }
+}
+
+#[test]
+fn authentication_in_two_halves_answers_as_in_one_and_refuses_a_key_changed_between() {
+    let mut rig = Rig::new(1, 0, plain());
+    rig.ok(Command::SetKey { key: KEY });
+    // Challenge and response through begin / run / finish: authenticated and sealed.
+    let mut session = network(&mut rig);
+    let Reply::Challenge { nonce } =
+        split(&mut rig, &mut session, 2, Command::AuthChallenge, |_| {})
+    else {
+        panic!("no challenge");
+    };
+    assert_eq!(
+        split(&mut rig, &mut session, 3, response(&KEY, &nonce), |_| {}),
+        Reply::Ok
+    );
+    assert!(session.has_authenticated());
+    assert!(session.take_sealer().is_some(), "the reply is sealed");
+    // Everything else is answered by `begin` alone.
+    let mut replies = Vec::new();
+    let status = Request {
+        id: RequestId(4),
+        command: Command::Status,
+    };
+    assert!(
+        rig.controller
+            .begin(&mut session, &status, rig.now, &mut |m| replies.push(m))
+            .is_none()
+    );
+    assert_eq!(replies.len(), 1);
+
+    // A response checked against a key that the serial link replaced meanwhile: refused,
+    // neither authenticated nor counted as a guess.
+    let mut late = network(&mut rig);
+    let Reply::Challenge { nonce } = split(&mut rig, &mut late, 2, Command::AuthChallenge, |_| {})
+    else {
+        panic!("no challenge");
+    };
+    let reply = split(&mut rig, &mut late, 3, response(&KEY, &nonce), |rig| {
+        rig.ok(Command::SetKey { key: [9; 32] })
+    });
+    assert_eq!(code(&reply), Some(ErrorCode::AUTH_FAILED));
+    assert!(reason(&reply).contains("key changed"), "{reply:?}");
+    assert!(!late.has_authenticated());
+    assert_eq!(rig.status().security.failed_authentications, 0);
 }

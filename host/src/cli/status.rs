@@ -72,6 +72,7 @@ fn render_table(endpoint: &str, identity: &Identity, status: &Status) -> String 
     };
     out += &describe_storage(&status.storage);
     out += &describe_security(&status.security);
+    out += &describe_underruns(&status.axes);
     let lost: Vec<String> = (0..)
         .zip(&status.axes)
         .filter(|(_, axis)| axis.faults.has(Faults::POSITION_LOST))
@@ -150,6 +151,25 @@ fn describe_security(counters: &SecurityCounters) -> String {
     )
 }
 
+/// The step timing line, only when an axis's step engine ran out of steps mid-move.
+fn describe_underruns(axes: &[AxisStatus]) -> String {
+    let late: Vec<String> = (0..)
+        .zip(axes)
+        .filter(|(_, axis)| axis.underruns > 0)
+        .map(|(index, axis): (usize, _)| match axis.underruns {
+            1 => format!("axis {index} once"),
+            count => format!("axis {index} {count} times"),
+        })
+        .collect();
+    if late.is_empty() {
+        return String::new();
+    }
+    format!(
+        "STEP TIMING: the step engine ran out of queued steps mid-move ({}) since start-up: the steps after came late, none was lost\n",
+        late.join(", ")
+    )
+}
+
 fn yes_no(value: bool) -> &'static str {
     if value { "yes" } else { "no" }
 }
@@ -195,5 +215,24 @@ mod tests {
             }),
             "network: 1 failed authentication and 3 rejected frames (bad MAC, replay or no MAC) since start-up\n"
         );
+    }
+
+    #[test]
+    fn the_step_timing_line_names_the_axes_that_ran_out_and_only_them() {
+        let axis = |underruns| AxisStatus {
+            position: 0,
+            motor_steps: 0,
+            target: 0,
+            moving: false,
+            direction: Direction::Idle,
+            slack: Slack::Unknown,
+            limits: optalign_protocol::SoftLimits { min: -1, max: 1 },
+            faults: Faults(0),
+            powered: false,
+            underruns,
+        };
+        assert_eq!(describe_underruns(&[axis(0), axis(0)]), "");
+        let line = describe_underruns(&[axis(0), axis(2), axis(0), axis(1)]);
+        assert!(line.contains("(axis 1 2 times, axis 3 once)"), "{line}");
     }
 }

@@ -38,8 +38,8 @@ use optalign_protocol::auth::{self, Key};
 use optalign_protocol::seal::{Direction, Inbound, Opener, Sealer};
 use optalign_protocol::{
     Access, AxisConfig, AxisValue, Command, ErrorCode, ErrorReply, FrameError, Identity, MAX_AXES,
-    MoveOutcome, MoveResult, Notification, PROTOCOL_VERSION, PeerMessage, Reply, Request,
-    RequestId, Status,
+    MoveOutcome, MoveResult, Notification, PROTOCOL_VERSION, PeerMessage, RefusalDetail, Reply,
+    Request, RequestId, Status,
 };
 use tokio::io::{AsyncWriteExt, WriteHalf};
 use tokio::sync::{broadcast, oneshot};
@@ -100,12 +100,14 @@ pub enum ClientError {
         source: std::io::Error,
     },
     #[error(
-        "protocol version mismatch: controller at {endpoint} speaks version {theirs}, this optalign speaks {ours}; update the firmware or the host so they match"
+        "protocol version mismatch: controller at {endpoint} speaks {}, this optalign speaks version {ours}; update the firmware or the host so they match",
+        version_name(*.theirs)
     )]
     VersionMismatch {
         endpoint: Endpoint,
         ours: u16,
-        theirs: u16,
+        /// `None` from a controller older than version 5, which does not say which.
+        theirs: Option<u16>,
     },
     #[error("controller refused the request: {0}")]
     Rejected(ErrorReply),
@@ -397,7 +399,9 @@ impl Client {
                     tokio::time::sleep(self.options.request_timeout).await;
                     last_error = Some(ClientError::Rejected(error));
                 }
-                Ok(Reply::Error(error)) => return Err(ClientError::Rejected(error)),
+                Ok(Reply::Error(error) | Reply::Refused { error, .. }) => {
+                    return Err(ClientError::Rejected(error));
+                }
                 Ok(reply) => return Ok(reply),
                 Err(
                     error @ (ClientError::VersionMismatch { .. }
@@ -663,16 +667,27 @@ impl Client {
             Ok(Reply::Hello(identity)) => Err(ClientError::VersionMismatch {
                 endpoint: self.endpoint.clone(),
                 ours: PROTOCOL_VERSION,
-                theirs: identity.protocol_version,
+                theirs: Some(identity.protocol_version),
             }),
+            Ok(Reply::Refused {
+                error,
+                detail: RefusalDetail::ProtocolVersion(theirs),
+            }) if error.code == ErrorCode::VERSION_MISMATCH => Err(ClientError::VersionMismatch {
+                endpoint: self.endpoint.clone(),
+                ours: PROTOCOL_VERSION,
+                theirs: Some(theirs),
+            }),
+            // A controller older than version 5 says no more than the code.
             Ok(Reply::Error(error)) if error.code == ErrorCode::VERSION_MISMATCH => {
                 Err(ClientError::VersionMismatch {
                     endpoint: self.endpoint.clone(),
                     ours: PROTOCOL_VERSION,
-                    theirs: peer_version_from(&error).unwrap_or(0),
+                    theirs: None,
                 })
             }
-            Ok(Reply::Error(error)) => Err(ClientError::Rejected(error)),
+            Ok(Reply::Error(error) | Reply::Refused { error, .. }) => {
+                Err(ClientError::Rejected(error))
+            }
             Ok(other) => Err(self.unexpected("Hello", other)),
             Err(error) => Err(error),
         }
@@ -688,14 +703,14 @@ impl Client {
         loop {
             tries += 1;
             match self.answer_challenge(slot, key).await {
-                Err(ClientError::Rejected(error))
-                    if error.code == ErrorCode::AUTH_BACKOFF && tries < AUTH_TRIES =>
-                {
-                    let wait = backoff_from(&error).min(LONGEST_BACKOFF);
+                Err(Refusal::Backoff { wait, .. }) if tries < AUTH_TRIES => {
+                    let wait = wait.min(LONGEST_BACKOFF);
                     tracing::info!(?wait, "controller backs off authentication; waiting");
                     tokio::time::sleep(wait).await;
                 }
-                outcome => return outcome,
+                Err(Refusal::Backoff { error, .. }) => return Err(ClientError::Rejected(error)),
+                Err(Refusal::Other(error)) => return Err(error),
+                Ok(()) => return Ok(()),
             }
         }
     }
@@ -705,11 +720,10 @@ impl Client {
         &self,
         slot: &mut Option<Connection>,
         key: &Key,
-    ) -> Result<(), ClientError> {
+    ) -> Result<(), Refusal> {
         let nonce = match self.setup_request(slot, Command::AuthChallenge).await? {
             Reply::Challenge { nonce } => nonce,
-            Reply::Error(error) => return Err(ClientError::Rejected(error)),
-            other => return Err(self.unexpected("AuthChallenge", other)),
+            other => return Err(self.refusal("AuthChallenge", other)),
         };
         let client_nonce: auth::Nonce = rand::random();
         let tag = auth::challenge_tag(key, &nonce, &client_nonce);
@@ -731,12 +745,29 @@ impl Client {
             }
             Reply::Ok => Err(ClientError::Impostor {
                 endpoint: self.endpoint.clone(),
-            }),
-            Reply::Error(error) => {
-                *lock(&inbound) = Inbound::plain();
-                Err(ClientError::Rejected(error))
             }
-            other => Err(self.unexpected("AuthResponse", other)),
+            .into()),
+            other => {
+                *lock(&inbound) = Inbound::plain();
+                Err(self.refusal("AuthResponse", other))
+            }
+        }
+    }
+
+    /// What a reply other than the one hoped for to `request` means.
+    fn refusal(&self, request: &'static str, reply: Reply) -> Refusal {
+        match reply {
+            Reply::Refused {
+                error,
+                detail: RefusalDetail::RetryAfterMs(ms),
+            } => Refusal::Backoff {
+                wait: Duration::from_millis(u64::from(ms)),
+                error,
+            },
+            Reply::Error(error) | Reply::Refused { error, .. } => {
+                Refusal::Other(ClientError::Rejected(error))
+            }
+            other => Refusal::Other(self.unexpected(request, other)),
         }
     }
 
@@ -974,29 +1005,32 @@ fn to_axis_list(values: &[AxisValue]) -> heapless::Vec<AxisValue, MAX_AXES> {
     values.iter().copied().take(MAX_AXES).collect()
 }
 
-/// Reads how long to wait out of an `auth-backoff` reason ("try again in N ms").
-fn backoff_from(error: &ErrorReply) -> Duration {
-    let millis = error
-        .reason
-        .split("try again in ")
-        .nth(1)
-        .and_then(|rest| rest.split(|c: char| !c.is_ascii_digit()).next())
-        .and_then(|digits| digits.parse().ok())
-        .unwrap_or(1000);
-    Duration::from_millis(millis)
-}
-
 fn lock<T>(mutex: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
     mutex.lock().unwrap_or_else(|e| e.into_inner())
 }
 
-/// Reads the peer's version out of a version-mismatch reason ("peer speaks protocol N").
-fn peer_version_from(error: &ErrorReply) -> Option<u16> {
-    let rest = error.reason.split("speaks protocol ").nth(1)?;
-    rest.split(|c: char| !c.is_ascii_digit())
-        .next()?
-        .parse()
-        .ok()
+/// Why an authentication attempt did not succeed.
+enum Refusal {
+    /// The controller backs off after failed authentications: try again after `wait`.
+    Backoff {
+        wait: Duration,
+        error: ErrorReply,
+    },
+    Other(ClientError),
+}
+
+impl From<ClientError> for Refusal {
+    fn from(error: ClientError) -> Self {
+        Self::Other(error)
+    }
+}
+
+/// A protocol version in words, for the mismatch message.
+fn version_name(version: Option<u16>) -> String {
+    match version {
+        Some(version) => format!("version {version}"),
+        None => "a version older than 5 (it does not say which)".into(),
+    }
 }
 
 async fn read_loop(

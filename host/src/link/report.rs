@@ -77,6 +77,7 @@ fn axis_report(index: usize, axis: &AxisStatus) -> Value {
         "limits": { "min": axis.limits.min, "max": axis.limits.max },
         "faults": fault_names(axis.faults),
         "powered": axis.powered,
+        "underruns": axis.underruns,
     })
 }
 

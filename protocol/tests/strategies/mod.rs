@@ -122,7 +122,7 @@ pub fn axis_status() -> impl Strategy<Value = AxisStatus> {
             Just(Slack::TakenUpNegative)
         ],
         limits(),
-        any::<u8>(),
+        any::<(u8, u32)>(),
     )
         .prop_map(
             |(
@@ -130,7 +130,7 @@ pub fn axis_status() -> impl Strategy<Value = AxisStatus> {
                 direction,
                 slack,
                 limits,
-                faults,
+                (faults, underruns),
             )| AxisStatus {
                 position,
                 motor_steps,
@@ -141,6 +141,7 @@ pub fn axis_status() -> impl Strategy<Value = AxisStatus> {
                 limits,
                 faults: Faults(faults),
                 powered,
+                underruns,
             },
         )
 }
@@ -231,6 +232,14 @@ pub fn reply() -> impl Strategy<Value = Reply> {
         config().prop_map(Reply::Config),
         any::<[u8; 16]>().prop_map(|nonce| Reply::Challenge { nonce }),
         error_reply().prop_map(Reply::Error),
+        (
+            error_reply(),
+            prop_oneof![
+                any::<u16>().prop_map(RefusalDetail::ProtocolVersion),
+                any::<u32>().prop_map(RefusalDetail::RetryAfterMs),
+            ]
+        )
+            .prop_map(|(error, detail)| Reply::Refused { error, detail }),
         Just(Reply::MoveResult(MoveResult::Unknown)),
         Just(Reply::MoveResult(MoveResult::InProgress)),
         (
