@@ -15,6 +15,7 @@ mod position;
 mod provision;
 mod render;
 mod replay;
+mod rezero;
 mod run;
 mod status;
 
@@ -55,6 +56,9 @@ enum Commands {
     Flash(flash::FlashArgs),
     /// Calibrate a bench from its camera: a mirror's response or an axis's backlash.
     Calibrate(calibrate::CalibrateArgs),
+    /// Find axes whose position was lost (power cut mid-move) from the camera and the
+    /// response calibration, and declare them.
+    Rezero(rezero::RezeroArgs),
     /// Write one camera frame of a simulated scene.
     Render(render::RenderArgs),
     /// Find the beams in an image file: centres, how sure, sizes, and what is wrong with each.
@@ -88,6 +92,7 @@ impl Cli {
             Commands::Provision(args) => provision::run(args).await,
             Commands::Flash(args) => flash::run(args),
             Commands::Calibrate(args) => calibrate::run(args).await,
+            Commands::Rezero(args) => rezero::run(args).await,
             Commands::Render(args) => render::run(args),
             Commands::Beams(args) => beams::run(args),
             Commands::Run(args) => run::run(args).await,

@@ -21,6 +21,7 @@ mod operator_stop;
 mod peer_limits;
 mod power_cut;
 mod rehearsal;
+mod rezero_cli;
 mod sim_rig;
 mod soak;
 mod stalled_peer;
