@@ -8,6 +8,7 @@ pub mod config;
 pub mod connect;
 mod demo;
 mod flash;
+mod jog;
 mod monitor;
 mod motion;
 mod peer;
@@ -42,6 +43,9 @@ enum Commands {
     Status(status::StatusArgs),
     /// Move axes to absolute targets (or by relative amounts); returns when motion ends.
     Move(motion::MoveArgs),
+    /// Drive a bench by hand while looking: keys move an axis by a step, the camera's beams
+    /// are read out live.
+    Jog(jog::JogArgs),
     /// Stop all motion: decelerate, or with --emergency cut the coils at once and latch.
     Stop(motion::StopArgs),
     /// Release the emergency latch so that moves are accepted again.
@@ -85,6 +89,7 @@ impl Cli {
             Commands::Peer(args) => peer::run(args).await,
             Commands::Status(args) => status::run(args).await,
             Commands::Move(args) => motion::run_move(args).await,
+            Commands::Jog(args) => jog::run(args).await,
             Commands::Stop(args) => motion::run_stop(args).await,
             Commands::ClearEmergency(args) => motion::run_clear_emergency(args).await,
             Commands::SetPosition(args) => position::run(args).await,

@@ -15,6 +15,7 @@ mod fuzz_inputs;
 mod hijack;
 mod hostile_clients;
 mod input_bounds;
+mod jog_cli;
 mod kill_campaign;
 mod monitor;
 mod operator_stop;
