@@ -4,6 +4,7 @@ pub mod axes;
 mod beams;
 mod bench;
 mod calibrate;
+mod cameras;
 pub mod config;
 pub mod connect;
 mod demo;
@@ -67,6 +68,8 @@ enum Commands {
     Render(render::RenderArgs),
     /// Find the beams in an image file: centres, how sure, sizes, and what is wrong with each.
     Beams(beams::BeamsArgs),
+    /// List the camera kinds this build reads and the V4L2 cameras found.
+    Cameras(cameras::CamerasArgs),
     /// Run one alignment task with one policy.
     Run(run::RunArgs),
     /// Run the task x policy x seed matrix on simulated rigs; write results, summary, charts.
@@ -100,6 +103,7 @@ impl Cli {
             Commands::Rezero(args) => rezero::run(args).await,
             Commands::Render(args) => render::run(args),
             Commands::Beams(args) => beams::run(args),
+            Commands::Cameras(args) => cameras::run(args),
             Commands::Run(args) => run::run(args).await,
             Commands::Bench(args) => bench::run(args).await,
             Commands::Demo(args) => demo::run(args).await,

@@ -395,7 +395,7 @@ fn open_camera(
             )?),
             None,
         ),
-        #[cfg(feature = "v4l2")]
+        #[cfg(target_os = "linux")]
         CameraSpec::V4l2 {
             device,
             exposure,
@@ -412,9 +412,9 @@ fn open_camera(
             )?),
             None,
         ),
-        #[cfg(not(feature = "v4l2"))]
+        #[cfg(not(target_os = "linux"))]
         CameraSpec::V4l2 { device, .. } => bail!(
-            "camera {}: this optalign was built without V4L2 support; rebuild with `--features v4l2` (needs libclang) or use a command or folder camera",
+            "camera {}: V4L2 cameras are read on Linux only; use a command, folder or HTTP camera",
             device.display()
         ),
         CameraSpec::Sim { seed, scenario } => {
