@@ -29,15 +29,8 @@ use optalign::task::TaskKind;
 use optalign_optics::seeds::{cavity_offsets, michelson_offsets};
 use optalign_protocol::{AxisValue, BacklashMode, Command, Faults};
 
-/// The default Michelson scene binned by 4 (480 x 270 px).
-const MICHELSON_SCENE: &str = r#"[michelson]
-width_px = 480
-height_px = 270
-mirror_1_sensitivity_px_per_step = [[0.0425, 0.003], [-0.0025, -0.04]]
-mirror_2_sensitivity_px_per_step = [[-0.04125, -0.00375], [0.003, 0.03875]]
-beam_radius_px = [32.5, 28.75]
-fringe_period_px = 10.5
-"#;
+/// The default Michelson scene binned by 4 (480 x 270 px), as the host's rehearsal tests use it.
+const MICHELSON_SCENE: &str = include_str!("../../../host/tests/scenes/michelson-480x270.toml");
 
 /// The default cavity scene binned by 2 (640 x 512 px).
 const CAVITY_SCENE: &str = r#"[cavity]
@@ -319,27 +312,38 @@ fn skipped_on_a_board() -> bool {
     board
 }
 
-/// A Michelson cut mid-move by `deltas` at `share`, re-referenced and aligned.
-async fn michelson(seed: u64, deltas: [i32; 4], share: f64) {
-    if skipped_on_a_board() {
-        return;
-    }
-    let dir = tempfile::tempdir().unwrap();
-    let files = Files::new(dir.path(), TaskKind::Michelson, seed);
+/// A Michelson bench of `seed` with both beams in view and both responses calibrated.
+async fn calibrated_michelson(dir: &Path, seed: u64) -> (Files, Sim) {
+    let files = Files::new(dir, TaskKind::Michelson, seed);
     let o = michelson_offsets(&files.scenario().michelson, seed);
     // Beam 1 about 76 px left of the centre, beam 2 about 74 px right of it.
     let staged = [-o[0] - 1800, -o[1], -o[2] - 1800, -o[3]];
     let sim = start(&options(4), None);
     prepare(&sim, &staged).await;
     calibrate(&files.rig(&sim.url, ""), &[1, 2], 1000).await;
+    (files, sim)
+}
 
-    let sim = cut_mid_move(sim, &deltas, share).await;
-    let rig = files.rig(&sim.url, "");
-    let declared = re_reference(&files, &rig).await.unwrap();
-    let lost: Vec<usize> = (0..4).filter(|&a| deltas[a] != 0).collect();
+/// Cuts the power mid-move by `deltas` at `share`, re-references the bench (its scoring
+/// table `scoring`), checks the declared positions against the true shafts and aligns it.
+async fn recover_and_align(files: &Files, sim: Sim, scoring: &str, deltas: &[i32], share: f64) {
+    let sim = cut_mid_move(sim, deltas, share).await;
+    let rig = files.rig(&sim.url, scoring);
+    let declared = re_reference(files, &rig).await.unwrap();
+    let lost: Vec<usize> = (0..deltas.len()).filter(|&a| deltas[a] != 0).collect();
     check_declared(&sim, &declared, &lost);
     let summary = align(rig).await;
     assert!(summary.success, "{summary:?}");
+}
+
+/// A Michelson cut mid-move by `deltas` at `share`, re-referenced and aligned.
+async fn michelson(seed: u64, deltas: [i32; 4], share: f64) {
+    if skipped_on_a_board() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let (files, sim) = calibrated_michelson(dir.path(), seed).await;
+    recover_and_align(&files, sim, "", &deltas, share).await;
 }
 
 #[tokio::test(flavor = "multi_thread")]
@@ -373,14 +377,7 @@ async fn cavity(seed: u64, deltas: [i32; 2], share: f64) {
     let sim = start(&options(2), None);
     prepare(&sim, &staged).await;
     calibrate(&files.rig(&sim.url, &scoring), &[1], 400).await;
-
-    let sim = cut_mid_move(sim, &deltas, share).await;
-    let rig = files.rig(&sim.url, &scoring);
-    let declared = re_reference(&files, &rig).await.unwrap();
-    let lost: Vec<usize> = (0..2).filter(|&a| deltas[a] != 0).collect();
-    check_declared(&sim, &declared, &lost);
-    let summary = align(rig).await;
-    assert!(summary.success, "{summary:?}");
+    recover_and_align(&files, sim, &scoring, &deltas, share).await;
 }
 
 #[tokio::test(flavor = "multi_thread")]
@@ -404,14 +401,8 @@ async fn a_beam_beyond_the_search_is_refused_with_nothing_declared() {
     if skipped_on_a_board() {
         return;
     }
-    let seed = 3;
     let dir = tempfile::tempdir().unwrap();
-    let files = Files::new(dir.path(), TaskKind::Michelson, seed);
-    let o = michelson_offsets(&files.scenario().michelson, seed);
-    let staged = [-o[0] - 1800, -o[1], -o[2] - 1800, -o[3]];
-    let sim = start(&options(4), None);
-    prepare(&sim, &staged).await;
-    calibrate(&files.rig(&sim.url, ""), &[1, 2], 1000).await;
+    let (files, sim) = calibrated_michelson(dir.path(), 3).await;
 
     // Mirror 2's first axis runs 54,000 steps (over 2,000 px) before the power goes.
     let sim = cut_mid_move(sim, &[0, 0, 60_000, 0], 0.9).await;

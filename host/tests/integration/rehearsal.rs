@@ -18,14 +18,7 @@ use tokio::process::{Child, Command};
 use crate::BIN;
 pub(crate) const KEY: &str = "rehearsal-test-key";
 /// The default scene binned by 4: responses, beam radii and fringe period scaled by 1/4.
-pub(crate) const SMALL_SCENE: &str = r#"[michelson]
-width_px = 480
-height_px = 270
-mirror_1_sensitivity_px_per_step = [[0.0425, 0.003], [-0.0025, -0.04]]
-mirror_2_sensitivity_px_per_step = [[-0.04125, -0.00375], [0.003, 0.03875]]
-beam_radius_px = [32.5, 28.75]
-fringe_period_px = 10.5
-"#;
+pub(crate) const SMALL_SCENE: &str = include_str!("../scenes/michelson-480x270.toml");
 
 /// A rehearsal peer in its own process, and the rig file it wrote.
 pub(crate) struct Bench {

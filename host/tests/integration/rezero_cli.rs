@@ -188,48 +188,27 @@ async fn the_documented_recovery_from_a_power_cut_declares_the_lost_axes_and_ali
             "{printed}\ntruth {truth:?}"
         );
     }
-    let (output, printed) = optalign(
-        dir.path(),
-        &[
-            "run",
-            "michelson",
-            "--rig",
-            &rig,
-            "--policy",
-            "vision",
-            "--out",
-            "run-2",
-        ],
-    )
-    .await;
-    assert!(output.status.success(), "{printed}");
-    assert!(printed.contains("rig.toml: aligned"), "{printed}");
+    aligned_run(dir.path(), &rig, &["--out", "run-2"]).await;
 
     // The bench is aligned now, both beams on the centre: the cut moves them apart (a lost
     // axis that can only move its beam along the other beam is refused, see docs/lab.md).
     cut_mid_move(dir.path(), bench, "0=-2400 2=-1800").await;
     let bench = peer(dir.path(), "0").await;
     let rig = bench.rig.to_str().unwrap().to_owned();
-    let (output, printed) = optalign(
-        dir.path(),
-        &[
-            "run",
-            "michelson",
-            "--rig",
-            &rig,
-            "--policy",
-            "vision",
-            "--out",
-            "run-3",
-            "--rezero",
-        ],
-    )
-    .await;
-    assert!(output.status.success(), "{printed}");
+    let printed = aligned_run(dir.path(), &rig, &["--out", "run-3", "--rezero"]).await;
     assert_eq!(
         declared(&printed).iter().map(|f| f.0).collect::<Vec<_>>(),
         [0, 2],
         "{printed}"
     );
+}
+
+/// `optalign run michelson --rig RIG --policy vision EXTRA`, which must align; what it said.
+async fn aligned_run(dir: &Path, rig: &str, extra: &[&str]) -> String {
+    let mut args = vec!["run", "michelson", "--rig", rig, "--policy", "vision"];
+    args.extend(extra);
+    let (output, printed) = optalign(dir, &args).await;
+    assert!(output.status.success(), "{printed}");
     assert!(printed.contains("rig.toml: aligned"), "{printed}");
+    printed
 }
