@@ -16,9 +16,13 @@
 //! A move arriving while another runs replaces it: the running move brakes to a stop along
 //! its ramps (its `MoveFinished` says `Stopped`), and the new one is planned from where the
 //! axes come to rest (known exactly at once, since braking is deterministic) and starts
-//! when they do; its `MoveStarted` duration includes the braking. `MoveBy` deltas are
-//! relative to that rest position. A move that was waiting for such a stop and is replaced
-//! in turn never runs; it finishes `Stopped` at once.
+//! when they do; its `MoveStarted` duration includes the braking. `MoveBy` and
+//! `RecoveryMoveBy` deltas are relative to that rest position. A move that was waiting for
+//! such a stop and is replaced in turn never runs; it finishes `Stopped` at once.
+//!
+//! A lost position (`POSITION_LOST`) refuses `MoveTo` and `MoveBy`; `RecoveryMoveBy`, the
+//! explicit recovery mode, moves such an axis relatively (never to an absolute target it
+//! cannot know), each step bounded by the width of its soft limits, and leaves it flagged.
 
 use heapless::String;
 use optalign_protocol::auth::Nonce;
@@ -226,8 +230,11 @@ impl<S: Storage> Controller<S> {
                 return self.respond(session, tag, client_nonce, now);
             }
             Command::Status => Reply::Status(self.status(session, now)),
-            Command::MoveTo { targets } => self.start_move(id, targets, false, now)?,
-            Command::MoveBy { deltas } => self.start_move(id, deltas, true, now)?,
+            Command::MoveTo { targets } => self.start_move(id, targets, Motion::Absolute, now)?,
+            Command::MoveBy { deltas } => self.start_move(id, deltas, Motion::Relative, now)?,
+            Command::RecoveryMoveBy { deltas } => {
+                self.start_move(id, deltas, Motion::Recovery, now)?
+            }
             Command::Stop => {
                 self.stop_motion(now);
                 Reply::Ok
@@ -446,7 +453,7 @@ impl<S: Storage> Controller<S> {
         &mut self,
         id: RequestId,
         values: &[AxisValue],
-        relative: bool,
+        motion: Motion,
         now: u64,
     ) -> Result<Reply, ErrorReply> {
         if self.emergency {
@@ -475,36 +482,60 @@ impl<S: Storage> Controller<S> {
             let (Some(axis), Some(rest)) = (self.axes.get(index), rest.get(index)) else {
                 return Err(internal("axis vanished"));
             };
-            if axis.faults.has(Faults::POSITION_LOST) {
+            let lost = axis.faults.has(Faults::POSITION_LOST);
+            if lost && motion != Motion::Recovery {
                 return Err(error_reply!(
                     ErrorCode::AXIS_FAULT,
-                    "axis {}: position lost (reset mid-move or unreadable record): re-zero it with \
-                     SetPosition",
+                    "axis {}: position lost: declare it with SetPosition (RecoveryMoveBy moves it \
+                     meanwhile)",
                     value.axis
                 ));
             }
             let limits = axis.config.limits;
-            let target = if relative {
-                i64::from(rest.position) + i64::from(value.steps)
-            } else {
-                i64::from(value.steps)
+            let target = match motion {
+                Motion::Absolute => i64::from(value.steps),
+                Motion::Relative | Motion::Recovery => {
+                    i64::from(rest.position) + i64::from(value.steps)
+                }
             };
-            let target = i32::try_from(target)
-                .ok()
-                .filter(|&t| limits.contains(t))
-                .ok_or_else(|| {
-                    error_reply!(
-                        ErrorCode::OUT_OF_LIMITS,
-                        "axis {}: target {target} outside soft limits {}..={}",
-                        value.axis,
-                        limits.min,
-                        limits.max
-                    )
-                })?;
+            let mut config = axis.config;
+            let target = if lost {
+                // The position the limits bound is unknown: bound the step instead, and
+                // let the path's overshoot go wherever the counter goes.
+                let width = i64::from(limits.max) - i64::from(limits.min);
+                let target = i32::try_from(target)
+                    .ok()
+                    .filter(|_| i64::from(value.steps).abs() <= width)
+                    .ok_or_else(|| {
+                        error_reply!(
+                            ErrorCode::OUT_OF_LIMITS,
+                            "axis {}: position lost, so a recovery move may go at most the width \
+                             of its soft limits ({width} steps), not {}",
+                            value.axis,
+                            value.steps
+                        )
+                    })?;
+                config.limits.min = limits.min.min(target);
+                config.limits.max = limits.max.max(target);
+                target
+            } else {
+                i32::try_from(target)
+                    .ok()
+                    .filter(|&t| limits.contains(t))
+                    .ok_or_else(|| {
+                        error_reply!(
+                            ErrorCode::OUT_OF_LIMITS,
+                            "axis {}: target {target} outside soft limits {}..={}",
+                            value.axis,
+                            limits.min,
+                            limits.max
+                        )
+                    })?
+            };
             let plan = AxisPlan {
                 axis: value.axis,
                 target,
-                path: plan_path(rest.gear, rest.position, target, &axis.config),
+                path: plan_path(rest.gear, rest.position, target, &config),
                 max_speed: axis.config.max_speed,
                 acceleration: axis.config.acceleration,
             };
@@ -638,6 +669,17 @@ impl<S: Storage> Controller<S> {
                 )
             })
     }
+}
+
+/// How a move's values are read.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Motion {
+    /// Absolute targets (`MoveTo`).
+    Absolute,
+    /// Deltas from the current positions (`MoveBy`).
+    Relative,
+    /// Deltas, also on axes whose position is lost (`RecoveryMoveBy`).
+    Recovery,
 }
 
 fn unknown_axis(axis: u8, axes: usize) -> ErrorReply {

@@ -6,6 +6,9 @@
 //! same cases run against that board; cases that need the simulator's hidden truth or a
 //! second peer say they are skipped.
 
+#[path = "suite/rezero.rs"]
+mod rezero;
+
 use std::time::Duration;
 
 use optalign::link::framed::{FrameReader, write_frame};

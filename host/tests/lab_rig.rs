@@ -155,6 +155,7 @@ async fn michelson_runs_through_the_lab_rig_and_is_scored_by_calibration() {
         matrix_px_per_step: matrix,
         residual_rms_px: 0.0,
         points: 0,
+        stationary_px: None,
     };
     let calibration = ResponseCalibration {
         image_size_px: [p.width_px, p.height_px],

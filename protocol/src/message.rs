@@ -76,6 +76,13 @@ pub enum Command {
     /// Asks how the move started by `request` ended, for a host that missed its
     /// [`Notification::MoveFinished`]. Allowed without authentication.
     MoveResult { request: RequestId },
+    /// Recovery mode: like `MoveBy`, and also accepted on axes flagged
+    /// [`Faults::POSITION_LOST`], which stay flagged (only `SetPosition` declares where an
+    /// axis is). On such an axis the soft limits cannot be checked, since the position they
+    /// bound is unknown: each delta must instead be no larger than the width of the axis's
+    /// soft limits. For finding a lost position again from the camera (`optalign rezero`);
+    /// there is no absolute move on a lost axis.
+    RecoveryMoveBy { deltas: Vec<AxisValue, MAX_AXES> },
 }
 
 impl Command {
@@ -98,6 +105,7 @@ impl Command {
             Self::AuthResponse { .. } => "AuthResponse",
             Self::ClearEmergency => "ClearEmergency",
             Self::MoveResult { .. } => "MoveResult",
+            Self::RecoveryMoveBy { .. } => "RecoveryMoveBy",
         }
     }
 
@@ -117,7 +125,8 @@ impl Command {
             | Self::SetPosition { .. }
             | Self::SetConfig { .. }
             | Self::SaveConfig
-            | Self::ClearEmergency => Access::Control,
+            | Self::ClearEmergency
+            | Self::RecoveryMoveBy { .. } => Access::Control,
             Self::ProvisionWifi { .. } | Self::SetKey { .. } => Access::SerialOnly,
         }
     }

@@ -386,3 +386,111 @@ fn no_challenge_is_issued_until_the_boot_counter_is_stored() {
     let reply = rig.send_on(&mut net, RequestId(3), Command::AuthChallenge);
     assert!(matches!(reply, Reply::Challenge { .. }), "{reply:?}");
 }
+
+#[test]
+fn a_lost_axis_moves_only_relatively_in_recovery_and_stays_lost_until_declared() {
+    let mut rig = Rig::new(2, 0, super::dispatch::plain());
+    rig.move_to(&[(0, 2000)]);
+    rig.run_until(rig.now + 400_000);
+    let cut = rig.shaft(0);
+    assert!(cut > 0 && cut < 2000, "{cut}");
+    let mut rig = reboot(&rig);
+    let stale = rig.position(0);
+    assert!(rig.status().axes[0].faults.has(Faults::POSITION_LOST));
+
+    // Relative moves in recovery mode move the shaft exactly; the axis stays lost.
+    for delta in [300, -450] {
+        let reply = rig.send(Command::RecoveryMoveBy {
+            deltas: values(&[(0, delta)]),
+        });
+        assert!(matches!(reply, Reply::MoveStarted { .. }), "{reply:?}");
+        rig.settle();
+    }
+    assert_eq!(rig.shaft(0), cut - 150);
+    assert_eq!(
+        rig.position(0),
+        stale - 150,
+        "the counter moves by the deltas"
+    );
+    assert!(rig.status().axes[0].faults.has(Faults::POSITION_LOST));
+    // Absolute and ordinary relative moves are still refused, naming the recovery mode.
+    let reason = rig.error(
+        Command::MoveBy {
+            deltas: values(&[(0, 10)]),
+        },
+        ErrorCode::AXIS_FAULT,
+    );
+    assert!(reason.contains("RecoveryMoveBy"), "{reason}");
+    rig.error(
+        Command::MoveTo {
+            targets: values(&[(0, 10)]),
+        },
+        ErrorCode::AXIS_FAULT,
+    );
+    // A recovery step wider than the soft limits is refused and nothing steps.
+    let limits = rig.status().axes[0].limits;
+    let width = limits.max - limits.min;
+    let steps_before = rig.driver.steps.len();
+    let reason = rig.error(
+        Command::RecoveryMoveBy {
+            deltas: values(&[(0, width + 1)]),
+        },
+        ErrorCode::OUT_OF_LIMITS,
+    );
+    assert!(reason.contains("width"), "{reason}");
+    rig.settle();
+    assert_eq!(rig.driver.steps.len(), steps_before);
+    // On an axis that is not lost it is an ordinary relative move, limits checked.
+    let reply = rig.send(Command::RecoveryMoveBy {
+        deltas: values(&[(1, 25)]),
+    });
+    assert!(matches!(reply, Reply::MoveStarted { .. }), "{reply:?}");
+    rig.settle();
+    assert_eq!(rig.shaft(1), 25);
+    rig.error(
+        Command::RecoveryMoveBy {
+            deltas: values(&[(1, limits.max)]),
+        },
+        ErrorCode::OUT_OF_LIMITS,
+    );
+
+    // Still lost after a reset; declared, it moves as usual.
+    let mut rig = reboot(&rig);
+    assert!(rig.status().axes[0].faults.has(Faults::POSITION_LOST));
+    rig.ok(Command::SetPosition {
+        axis: 0,
+        position: cut - 150,
+    });
+    rig.move_and_settle(&[(0, 0)]);
+    assert_eq!(rig.shaft(0), 0);
+    assert!(rig.status().axes[0].faults.is_clear());
+}
+
+#[test]
+fn recovery_moves_end_on_the_approach_side_with_one_sided_compensation() {
+    let mut rig = Rig::new(1, 30, one_sided(30));
+    rig.move_to(&[(0, 2000)]);
+    rig.run_until(rig.now + 400_000);
+    let mut rig = reboot(&rig);
+    assert!(rig.status().axes[0].faults.has(Faults::POSITION_LOST));
+    rig.ok(Command::SetConfig {
+        axis: 0,
+        config: one_sided(30),
+    });
+    for (i, delta) in [-200, 120, -50, 60].into_iter().enumerate() {
+        let before = rig.shaft(0);
+        let reply = rig.send(Command::RecoveryMoveBy {
+            deltas: values(&[(0, delta)]),
+        });
+        assert!(matches!(reply, Reply::MoveStarted { .. }), "{reply:?}");
+        rig.settle();
+        let last = *rig.steps_of(0).last().unwrap();
+        assert_eq!(last.direction, crate::StepDirection::Forward, "{delta}");
+        // Pressed against the approach contact, the load then moves by exactly the delta
+        // (the first move starts with the slack unknown).
+        if i > 0 {
+            assert_eq!(rig.shaft(0), before + delta, "{delta}");
+        }
+    }
+    assert!(rig.status().axes[0].faults.has(Faults::POSITION_LOST));
+}

@@ -85,6 +85,7 @@ pub(super) fn command() -> impl Strategy<Value = Command> {
         1 => Just(Command::Status),
         4 => axis_values().prop_map(|targets| Command::MoveTo { targets }),
         4 => axis_values().prop_map(|deltas| Command::MoveBy { deltas }),
+        1 => axis_values().prop_map(|deltas| Command::RecoveryMoveBy { deltas }),
         2 => Just(Command::Stop),
         1 => Just(Command::EmergencyStop),
         2 => Just(Command::ClearEmergency),

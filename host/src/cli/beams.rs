@@ -6,7 +6,7 @@ use std::path::PathBuf;
 
 use clap::Args;
 
-use crate::imaging::{Beam, Picture, find_beams};
+use crate::imaging::{Picture, find_beams};
 use crate::lab::camera::{decode_image, saturated_fraction};
 
 #[derive(Debug, Args)]
@@ -85,32 +85,8 @@ pub fn run(args: BeamsArgs) -> anyhow::Result<()> {
             beam.radii[1],
             beam.angle_deg,
             beam.peak,
-            notes(beam)
+            beam.notes()
         );
     }
     Ok(())
-}
-
-/// What a user should know about a beam before trusting its centre.
-fn notes(beam: &Beam) -> String {
-    let mut notes = Vec::new();
-    if beam.saturated {
-        notes.push("saturated".to_string());
-    }
-    if beam.clipped {
-        let fit = beam.fit.map_or(String::new(), |f| {
-            format!(", Gaussian fit at {:.1},{:.1}", f.centre[0], f.centre[1])
-        });
-        notes.push(format!(
-            "cut by the border ({:.0}% of peak there{fit})",
-            100.0 * beam.edge_level
-        ));
-    }
-    if !beam.localised {
-        notes.push("speckle, not a compact spot".to_string());
-    }
-    if beam.parts > 1 {
-        notes.push(format!("{} lobes joined", beam.parts));
-    }
-    notes.join("; ")
 }

@@ -9,9 +9,10 @@ use optalign_protocol::{BacklashMode, Command};
 use crate::lab::calibrate::{
     calibrate_backlash, calibrate_response, write_backlash_chart, write_response_chart,
 };
-use crate::lab::calibration::ResponseCalibration;
+use crate::lab::calibration::{ResponseCalibration, default_calibration_path};
 use crate::lab::rigfile::task_axis_names;
 use crate::lab::{LabRig, RigFile};
+use crate::task::TaskKind;
 
 #[derive(Debug, Args)]
 pub struct CalibrateArgs {
@@ -102,9 +103,8 @@ async fn response(
 ) -> anyhow::Result<()> {
     let file = RigFile::load(rig)?;
     let named = file.scoring.michelson_calibration.clone();
-    let out = out
-        .or_else(|| named.clone())
-        .unwrap_or_else(|| beside(rig, "response-calibration.json"));
+    let task = file.task;
+    let out = out.unwrap_or_else(|| default_calibration_path(rig, &file));
     // Read (or start) the file before anything moves, so a bad file costs no scan.
     let mut calibration = ResponseCalibration::load_or_new(&out)?;
     let mut bench = LabRig::connect_unscored(file).await?;
@@ -132,7 +132,7 @@ async fn response(
     calibration.set(scan.response);
     calibration.save(&out)?;
     crate::say!("wrote {}", out.display());
-    if named.as_deref() != Some(out.as_path()) {
+    if task == TaskKind::Michelson && named.as_deref() != Some(out.as_path()) {
         crate::say!(
             "to score runs with it, name it in {}: [scoring] michelson_calibration = {:?}",
             rig.display(),
@@ -195,21 +195,4 @@ async fn backlash(
         );
     }
     Ok(())
-}
-
-fn beside(file: &Path, name: &str) -> PathBuf {
-    file.parent().unwrap_or(Path::new(".")).join(name)
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn outputs_default_beside_the_rig_file() {
-        assert_eq!(
-            beside(Path::new("benches/a.toml"), "x.json"),
-            PathBuf::from("benches/x.json")
-        );
-    }
 }

@@ -4,10 +4,12 @@ pub mod axes;
 mod beams;
 mod bench;
 mod calibrate;
+mod cameras;
 pub mod config;
 pub mod connect;
 mod demo;
 mod flash;
+mod jog;
 mod monitor;
 mod motion;
 mod peer;
@@ -15,6 +17,7 @@ mod position;
 mod provision;
 mod render;
 mod replay;
+mod rezero;
 mod run;
 mod status;
 
@@ -41,6 +44,9 @@ enum Commands {
     Status(status::StatusArgs),
     /// Move axes to absolute targets (or by relative amounts); returns when motion ends.
     Move(motion::MoveArgs),
+    /// Drive a bench by hand while looking: keys move an axis by a step, the camera's beams
+    /// are read out live.
+    Jog(jog::JogArgs),
     /// Stop all motion: decelerate, or with --emergency cut the coils at once and latch.
     Stop(motion::StopArgs),
     /// Release the emergency latch so that moves are accepted again.
@@ -55,10 +61,15 @@ enum Commands {
     Flash(flash::FlashArgs),
     /// Calibrate a bench from its camera: a mirror's response or an axis's backlash.
     Calibrate(calibrate::CalibrateArgs),
+    /// Find axes whose position was lost (power cut mid-move) from the camera and the
+    /// response calibration, and declare them.
+    Rezero(rezero::RezeroArgs),
     /// Write one camera frame of a simulated scene.
     Render(render::RenderArgs),
     /// Find the beams in an image file: centres, how sure, sizes, and what is wrong with each.
     Beams(beams::BeamsArgs),
+    /// List the camera kinds this build reads and the V4L2 cameras found.
+    Cameras(cameras::CamerasArgs),
     /// Run one alignment task with one policy.
     Run(run::RunArgs),
     /// Run the task x policy x seed matrix on simulated rigs; write results, summary, charts.
@@ -81,6 +92,7 @@ impl Cli {
             Commands::Peer(args) => peer::run(args).await,
             Commands::Status(args) => status::run(args).await,
             Commands::Move(args) => motion::run_move(args).await,
+            Commands::Jog(args) => jog::run(args).await,
             Commands::Stop(args) => motion::run_stop(args).await,
             Commands::ClearEmergency(args) => motion::run_clear_emergency(args).await,
             Commands::SetPosition(args) => position::run(args).await,
@@ -88,8 +100,10 @@ impl Cli {
             Commands::Provision(args) => provision::run(args).await,
             Commands::Flash(args) => flash::run(args),
             Commands::Calibrate(args) => calibrate::run(args).await,
+            Commands::Rezero(args) => rezero::run(args).await,
             Commands::Render(args) => render::run(args),
             Commands::Beams(args) => beams::run(args),
+            Commands::Cameras(args) => cameras::run(args),
             Commands::Run(args) => run::run(args).await,
             Commands::Bench(args) => bench::run(args).await,
             Commands::Demo(args) => demo::run(args).await,

@@ -8,6 +8,7 @@ use anyhow::Context;
 use clap::Args;
 
 use super::monitor::MonitorArgs;
+use super::rezero::{RezeroOptions, rezero_bench};
 use crate::lab::{LabRig, RigFile, error_basis};
 use crate::monitor::Hub;
 use crate::policy::vlm::{self, ReasoningEffort, VlmOptions};
@@ -52,6 +53,12 @@ pub struct RunArgs {
     /// monitor's page.
     #[arg(long, requires = "monitor")]
     paused: bool,
+    /// On a bench: find axes whose position was lost (power cut mid-move) from the camera
+    /// and declare them before the first evaluation, as `optalign rezero` does.
+    #[arg(long, requires = "rig")]
+    rezero: bool,
+    #[command(flatten)]
+    rezero_options: RezeroOptions,
     #[command(flatten)]
     vlm: VlmArgs,
 }
@@ -123,6 +130,23 @@ pub fn record_scenario(dir: &Path, scenario: &ScenarioFile) -> anyhow::Result<()
     std::fs::write(&path, text).with_context(|| format!("cannot write {}", path.display()))
 }
 
+/// Refuses to run a bench whose controllers lost positions, saying how to find them.
+async fn refuse_lost(lab: &LabRig, rig_path: &Path) -> anyhow::Result<()> {
+    let lost = lab.lost_axes().await?;
+    if lost.is_empty() {
+        return Ok(());
+    }
+    let names = crate::lab::rigfile::task_axis_names(lab.rig_file().task);
+    anyhow::bail!(
+        "the controllers lost the position of {} (a reset in the middle of a move); find them with `optalign rezero --rig {}`, or run with --rezero; nothing was moved",
+        lost.iter()
+            .map(|&a| names[a].as_str())
+            .collect::<Vec<_>>()
+            .join(", "),
+        rig_path.display()
+    )
+}
+
 pub async fn run(args: RunArgs) -> anyhow::Result<()> {
     let scenario = ScenarioFile::load_or_default(args.scenario.as_deref())?;
     let bench = args.rig.as_deref().map(RigFile::load).transpose()?;
@@ -162,9 +186,20 @@ pub async fn run(args: RunArgs) -> anyhow::Result<()> {
         .unwrap_or_else(|| run_dir(&PathBuf::from("runs"), args.task, &args.policy, args.seed));
     record_scenario(&out, &scenario)?;
     let basis = bench.as_ref().map(error_basis);
-    let mut rig: Box<dyn Rig> = match bench {
-        Some(bench) => Box::new(LabRig::connect(bench).await?),
-        None => Box::new(SimRig::new(args.task, &scenario, args.seed, args.motors).await?),
+    let mut rig: Box<dyn Rig> = match (bench, &args.rig) {
+        (Some(bench), Some(rig_path)) => {
+            let setup = args
+                .rezero
+                .then(|| args.rezero_options.setup(rig_path, &bench))
+                .transpose()?;
+            let mut lab = LabRig::connect(bench).await?;
+            match setup {
+                Some(setup) => rezero_bench(&mut lab, &setup).await?,
+                None => refuse_lost(&lab, rig_path).await?,
+            }
+            Box::new(lab)
+        }
+        _ => Box::new(SimRig::new(args.task, &scenario, args.seed, args.motors).await?),
     };
     let run_monitor = args
         .monitor

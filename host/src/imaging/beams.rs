@@ -123,6 +123,31 @@ impl Beam {
         (self.radii[0] * self.radii[1]).sqrt()
     }
 
+    /// What a user should know about the beam before trusting its centre (empty: nothing):
+    /// saturated, cut by the border, speckle, lobes joined.
+    pub fn notes(&self) -> String {
+        let mut notes = Vec::new();
+        if self.saturated {
+            notes.push("saturated".to_string());
+        }
+        if self.clipped {
+            let fit = self.fit.map_or(String::new(), |f| {
+                format!(", Gaussian fit at {:.1},{:.1}", f.centre[0], f.centre[1])
+            });
+            notes.push(format!(
+                "cut by the border ({:.0}% of peak there{fit})",
+                100.0 * self.edge_level
+            ));
+        }
+        if !self.localised {
+            notes.push("speckle, not a compact spot".to_string());
+        }
+        if self.parts > 1 {
+            notes.push(format!("{} lobes joined", self.parts));
+        }
+        notes.join("; ")
+    }
+
     /// The same beam moved by `by`, px.
     pub fn translated(&self, by: [f64; 2]) -> Beam {
         let moved = |p: [f64; 2]| [p[0] + by[0], p[1] + by[1]];

@@ -8,6 +8,25 @@ use anyhow::Context;
 use serde::{Deserialize, Serialize};
 
 use super::calibrate::fit::apply_affine;
+use super::rigfile::RigFile;
+
+/// The file name of a bench's response calibration when the rig file names none.
+pub const DEFAULT_CALIBRATION_FILE: &str = "response-calibration.json";
+
+/// Where the response calibration of the bench described by `rig` (read from `rig_path`)
+/// is: the file `scoring.michelson_calibration` names, else
+/// [`DEFAULT_CALIBRATION_FILE`] beside the rig file.
+pub fn default_calibration_path(rig_path: &Path, rig: &RigFile) -> std::path::PathBuf {
+    rig.scoring
+        .michelson_calibration
+        .clone()
+        .unwrap_or_else(|| {
+            rig_path
+                .parent()
+                .unwrap_or(Path::new("."))
+                .join(DEFAULT_CALIBRATION_FILE)
+        })
+}
 
 /// One mirror's fitted response: `centre + matrix · (position - reference)`, where
 /// positions are task-axis coordinates (controller steps, with the rig's inversion applied).
@@ -29,6 +48,10 @@ pub struct MirrorResponse {
     pub residual_rms_px: f64,
     /// Number of images the fit used.
     pub points: usize,
+    /// Where the brightest beam that stayed put during the scan was (the cavity's primary),
+    /// px: what the mirror's beam is measured from when the camera may have shifted.
+    #[serde(default)]
+    pub stationary_px: Option<[f64; 2]>,
 }
 
 impl MirrorResponse {
@@ -93,6 +116,22 @@ mod tests {
     use super::*;
 
     #[test]
+    fn the_calibration_is_the_named_file_or_beside_the_rig_file() {
+        let text = "task = \"cavity\"\n[[controller]]\nname = \"a\"\nurl = \"tcp://127.0.0.1:1\"\n[axes]\nx = { controller = \"a\", axis = 0 }\ny = { controller = \"a\", axis = 1 }\n[camera]\nkind = \"sim\"\n";
+        let rig = RigFile::parse(text, Path::new("benches")).unwrap();
+        assert_eq!(
+            default_calibration_path(Path::new("benches/a.toml"), &rig),
+            Path::new("benches/response-calibration.json")
+        );
+        let named = format!("{text}[scoring]\nmichelson_calibration = \"m.json\"\n");
+        let rig = RigFile::parse(&named, Path::new("benches")).unwrap();
+        assert_eq!(
+            default_calibration_path(Path::new("elsewhere/a.toml"), &rig),
+            Path::new("benches/m.json")
+        );
+    }
+
+    #[test]
     fn predicts_linearly_from_the_reference() {
         let response = MirrorResponse {
             mirror: 2,
@@ -103,6 +142,7 @@ mod tests {
             matrix_px_per_step: [[0.2, 0.01], [-0.02, 0.15]],
             residual_rms_px: 0.4,
             points: 9,
+            stationary_px: None,
         };
         let [x, y] = response.predict(&[0.0, 0.0, 200.0, 50.0]);
         assert!((x - (960.0 + 0.2 * 100.0 + 0.01 * 100.0)).abs() < 1e-9);

@@ -1,6 +1,7 @@
 //! The lab: rig files, cameras, camera movers, the lab rig that runs tasks on a real bench,
 //! bench scoring without hidden truth, calibration from the camera, and the rehearsal
-//! bench a simulated peer serves across processes.
+//! bench a simulated peer serves across processes, and positions found again from the
+//! camera after a power cut.
 
 pub mod calibrate;
 pub mod calibration;
@@ -9,6 +10,7 @@ mod command;
 mod http;
 pub mod mover;
 pub mod rehearsal;
+pub mod rezero;
 pub mod rig;
 pub mod rigfile;
 mod scoring;

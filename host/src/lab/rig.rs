@@ -11,7 +11,7 @@ use std::time::Duration;
 use anyhow::{Context, bail};
 use async_trait::async_trait;
 use optalign_optics::{Frame, Station};
-use optalign_protocol::{AxisValue, MoveOutcome};
+use optalign_protocol::{AxisStatus, AxisValue, Command, Faults, MoveOutcome, Status};
 
 use super::camera::{Camera, CommandCamera, FolderCamera, HttpCamera, SimCamera, SimView};
 use super::mover::{CameraMover, CommandMover, HttpMover, ManualMover, SimMover};
@@ -190,6 +190,118 @@ impl LabRig {
         (&self.controllers[route.controller], route.axis)
     }
 
+    /// The sign of task axis `axis` on its controller (-1 when the rig file inverts it).
+    pub fn sign(&self, axis: usize) -> i32 {
+        self.routes[axis].sign
+    }
+
+    /// The rig file the bench was connected from.
+    pub fn rig_file(&self) -> &RigFile {
+        &self.rig
+    }
+
+    /// The state of every task axis on its controller now, in task order (positions as the
+    /// controller counts them, without the rig's inversion).
+    pub async fn axis_states(&self) -> anyhow::Result<Vec<AxisStatus>> {
+        let statuses = statuses(&self.controllers).await?;
+        Ok(self
+            .routes
+            .iter()
+            .map(|route| statuses[route.controller].axes[usize::from(route.axis)])
+            .collect())
+    }
+
+    /// Task axes whose controller reports the position lost (`POSITION_LOST`).
+    pub async fn lost_axes(&self) -> anyhow::Result<Vec<usize>> {
+        Ok((0..)
+            .zip(self.axis_states().await?)
+            .filter(|(_, state)| state.faults.has(Faults::POSITION_LOST))
+            .map(|(axis, _)| axis)
+            .collect())
+    }
+
+    /// The controllers' position counters of every task axis now, in task steps (with the
+    /// rig's inversion); a lost axis's counter is not where it is.
+    pub async fn counters(&self) -> anyhow::Result<Vec<i32>> {
+        Ok(self
+            .routes
+            .iter()
+            .zip(self.axis_states().await?)
+            .map(|(route, state)| route.sign * state.position)
+            .collect())
+    }
+
+    /// Asks every controller to decelerate whatever moves, and says which did not answer.
+    pub async fn stop_all(&self) -> anyhow::Result<()> {
+        let stops = self
+            .controllers
+            .iter()
+            .map(|client| client.command_ok(Command::Stop));
+        reached_all(
+            futures::future::join_all(stops).await,
+            &self.rig.controllers,
+            "the stop",
+        )
+    }
+
+    /// Moves task axes by relative amounts (task steps) in the controllers' recovery mode,
+    /// which also moves axes whose position is lost; waits the settle time. The visible
+    /// settings are not changed: call [`Self::restart_origin`] once positions are known.
+    pub async fn recovery_move(&mut self, deltas: &[(usize, i32)]) -> anyhow::Result<()> {
+        let mut per_controller: Vec<Vec<AxisValue>> = vec![Vec::new(); self.controllers.len()];
+        for &(task_axis, delta) in deltas {
+            let route = &self.routes[task_axis];
+            per_controller[route.controller].push(AxisValue {
+                axis: route.axis,
+                steps: route.sign * delta,
+            });
+        }
+        let moves = self
+            .controllers
+            .iter()
+            .zip(&per_controller)
+            .filter(|(_, deltas)| !deltas.is_empty())
+            .map(|(client, deltas)| client.recovery_move_by(deltas));
+        for report in futures::future::join_all(moves).await {
+            let report = report?;
+            if report.outcome != MoveOutcome::Completed {
+                bail!(
+                    "a recovery move ended early ({:?}); check the mount and the controller",
+                    report.outcome
+                );
+            }
+        }
+        tokio::time::sleep(Duration::from_secs_f64(self.rig.settle.after_motor_s)).await;
+        Ok(())
+    }
+
+    /// Declares that task axis `axis` is at `position` (task steps) on its controller,
+    /// clearing a lost position.
+    pub async fn declare(&mut self, axis: usize, position: i32) -> anyhow::Result<()> {
+        let route = &self.routes[axis];
+        let client = &self.controllers[route.controller];
+        client
+            .command_ok(Command::SetPosition {
+                axis: route.axis,
+                position: route.sign * position,
+            })
+            .await
+            .with_context(|| {
+                format!(
+                    "declaring {} at {position} steps",
+                    super::rigfile::task_axis_names(self.rig.task)[axis]
+                )
+            })
+    }
+
+    /// Takes the controllers' positions now as the origin of the visible settings (0), as
+    /// at a run's start: after positions were re-declared.
+    pub async fn restart_origin(&mut self) -> anyhow::Result<()> {
+        self.origin = read_positions(&self.controllers, &self.routes).await?;
+        self.commanded = vec![0; self.routes.len()];
+        Ok(())
+    }
+
     /// Takes an image now (no settling).
     pub async fn capture(&mut self) -> anyhow::Result<Frame> {
         let frame = self
@@ -202,11 +314,35 @@ impl LabRig {
     }
 }
 
-async fn read_positions(controllers: &[Client], routes: &[AxisRoute]) -> anyhow::Result<Vec<i32>> {
+/// Fails naming every controller that `what` (a command sent to all) did not reach.
+fn reached_all(
+    results: Vec<Result<(), crate::link::ClientError>>,
+    specs: &[super::rigfile::ControllerSpec],
+    what: &str,
+) -> anyhow::Result<()> {
+    let failed: Vec<String> = results
+        .into_iter()
+        .zip(specs)
+        .filter_map(|(result, spec)| result.err().map(|e| format!("{:?}: {e}", spec.name)))
+        .collect();
+    anyhow::ensure!(
+        failed.is_empty(),
+        "{what} did not reach every controller: {}",
+        failed.join("; ")
+    );
+    Ok(())
+}
+
+async fn statuses(controllers: &[Client]) -> anyhow::Result<Vec<Status>> {
     let mut statuses = Vec::new();
     for client in controllers {
         statuses.push(client.status().await?);
     }
+    Ok(statuses)
+}
+
+async fn read_positions(controllers: &[Client], routes: &[AxisRoute]) -> anyhow::Result<Vec<i32>> {
+    let statuses = statuses(controllers).await?;
     Ok(routes
         .iter()
         .map(|route| statuses[route.controller].axes[usize::from(route.axis)].position)
@@ -219,11 +355,7 @@ fn sim_peers(rig: &RigFile, controllers: &[Client]) -> anyhow::Result<Vec<Arc<Si
         .iter()
         .zip(&rig.controllers)
         .map(|(client, spec)| {
-            let peer = match client.endpoint() {
-                Endpoint::Tcp { host, port } => format!("{host}:{port}").parse().ok().and_then(registry::lookup),
-                Endpoint::Serial { .. } => None,
-            };
-            peer.with_context(|| {
+            registry::lookup(client.endpoint()).with_context(|| {
                 format!(
                     "camera kind \"sim\" needs a simulated peer running in this process behind controller {:?} ({}); to rehearse against `optalign peer` in another process, start it with `--scene TASK --write-rig FILE` and use the rig file it writes (camera kind \"http\")",
                     spec.name, spec.url
@@ -263,7 +395,7 @@ fn open_camera(
             )?),
             None,
         ),
-        #[cfg(feature = "v4l2")]
+        #[cfg(target_os = "linux")]
         CameraSpec::V4l2 {
             device,
             exposure,
@@ -280,9 +412,9 @@ fn open_camera(
             )?),
             None,
         ),
-        #[cfg(not(feature = "v4l2"))]
+        #[cfg(not(target_os = "linux"))]
         CameraSpec::V4l2 { device, .. } => bail!(
-            "camera {}: this optalign was built without V4L2 support; rebuild with `--features v4l2` (needs libclang) or use a command or folder camera",
+            "camera {}: V4L2 cameras are read on Linux only; use a command, folder or HTTP camera",
             device.display()
         ),
         CameraSpec::Sim { seed, scenario } => {
@@ -392,19 +524,11 @@ impl Rig for LabRig {
             .controllers
             .iter()
             .map(|client| client.emergency_stop());
-        let results = futures::future::join_all(stops).await;
-        let mut failed = Vec::new();
-        for (result, spec) in results.into_iter().zip(&self.rig.controllers) {
-            if let Err(error) = result {
-                failed.push(format!("{:?}: {error}", spec.name));
-            }
-        }
-        anyhow::ensure!(
-            failed.is_empty(),
-            "the emergency stop did not reach every controller: {}",
-            failed.join("; ")
-        );
-        Ok(())
+        reached_all(
+            futures::future::join_all(stops).await,
+            &self.rig.controllers,
+            "the emergency stop",
+        )
     }
 
     async fn controllers(&mut self) -> anyhow::Result<Vec<ControllerView>> {

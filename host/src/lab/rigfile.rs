@@ -73,7 +73,7 @@ pub struct AxisSpec {
 #[derive(Clone, Debug, Serialize, Deserialize)]
 #[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
 pub enum CameraSpec {
-    /// A V4L2 device (needs the `v4l2` cargo feature): fixed exposure and gain.
+    /// A V4L2 device (Linux): fixed exposure and gain.
     V4l2 {
         device: PathBuf,
         /// Absolute exposure in the driver's units (auto exposure is switched off).

@@ -86,7 +86,7 @@ pub fn error_basis(rig: &RigFile) -> ErrorBasis {
 }
 
 /// A cavity counts as aligned within this many steps of its reference (the paper's rule).
-const CAVITY_SUCCESS_STEPS: f64 = 500.0;
+pub(crate) const CAVITY_SUCCESS_STEPS: f64 = 500.0;
 
 pub struct LabScorer {
     task: TaskKind,

@@ -836,6 +836,15 @@ impl Client {
         .await
     }
 
+    /// Moves axes by relative amounts in recovery mode, also on axes whose position is lost
+    /// (they stay lost until `SetPosition`); returns when the motion has ended.
+    pub async fn recovery_move_by(&self, deltas: &[AxisValue]) -> Result<MoveReport, ClientError> {
+        self.run_move(Command::RecoveryMoveBy {
+            deltas: to_axis_list(deltas),
+        })
+        .await
+    }
+
     /// Starts a move under a caller-chosen id and waits for it (used to show that a
     /// retransmitted move executes once).
     pub async fn run_move_with_id(

@@ -12,7 +12,7 @@ use tokio::sync::watch;
 
 use super::frames::FrameStore;
 use super::steps::{record_step, start_step};
-use super::view::{RunStatus, RunView};
+use super::view::{RunStatus, RunView, StepView};
 use crate::rig::{ControllerView, Score};
 use crate::run::{RunSummary, StepRecord};
 
@@ -129,6 +129,30 @@ impl RunMonitor {
         self.inner.view.send_modify(|view| {
             view.steps.push(record_step(record, shown));
             view.evaluations = record.evaluation;
+        });
+    }
+
+    /// A live view without a run (`optalign jog`): `frame` becomes the newest, shown by a
+    /// step of its own that says what was done (`action`, none for a refresh) and what came
+    /// of it.
+    pub fn live(&self, frame: Arc<Frame>, action: Option<String>, feedback: String) {
+        let number = self.inner.view.borrow().steps.len();
+        self.inner.frames.set_newest(number, frame);
+        self.inner.view.send_modify(|view| {
+            view.steps.push(StepView {
+                evaluation: number,
+                action,
+                feedback,
+                rejected: false,
+                frame: Some(number),
+                error: None,
+                best_error: None,
+                text: None,
+                claims: None,
+                marks: Vec::new(),
+            });
+            view.evaluations = number;
+            view.status = RunStatus::Running;
         });
     }
 

@@ -203,7 +203,7 @@ impl PeerCore {
         }
         let is_move = matches!(
             request.command,
-            Command::MoveTo { .. } | Command::MoveBy { .. }
+            Command::MoveTo { .. } | Command::MoveBy { .. } | Command::RecoveryMoveBy { .. }
         ) && bench::lock(&self.bench).log().is_some();
         let known_before = is_move && self.move_known(request.id);
         let mut out = Vec::new();
@@ -320,13 +320,20 @@ impl PeerCore {
                 Some(deadline)
                     if self.controller.is_moving() && self.clock.mode() == TimeMode::Instant =>
                 {
-                    // Straight to the move's last step: one poll takes all its steps.
-                    let end = self.controller.motion_end_us().unwrap_or(deadline);
-                    self.clock.jump_to(deadline.max(end))
+                    self.jump_towards(deadline)
                 }
                 _ => return out,
             }
         }
+    }
+
+    /// On instant time, moves the clock to `deadline`, or straight to the running move's
+    /// last step when there is one: the next poll then takes all its steps, in order (step
+    /// times are fixed at planning), instead of one poll (and one write of the mounts file)
+    /// per step. Scaled time is not moved.
+    pub fn jump_towards(&mut self, deadline: u64) {
+        let end = self.controller.motion_end_us().unwrap_or(deadline);
+        self.clock.jump_to(deadline.max(end));
     }
 
     pub fn clock(&self) -> &SimClock {

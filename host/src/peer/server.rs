@@ -134,7 +134,7 @@ impl SimPeer {
             .await
             .map_err(|e| anyhow::anyhow!("cannot listen on {address}: {e}"))?;
         let bound = listener.local_addr()?;
-        super::registry::register(bound, self);
+        super::registry::register_tcp(bound, self);
         let peer = self.clone();
         let accept = tokio::spawn(async move {
             // Aborting this task (a shutdown or a power cut) drops every connection too.
@@ -184,6 +184,7 @@ impl SimPeer {
         let path = tokio_serial::SerialPort::name(&terminal_side)
             .ok_or_else(|| anyhow::anyhow!("the pseudo-terminal has no path"))?;
         *lock(&self.pty_terminal) = Some(terminal_side);
+        super::registry::register_serial(&path, self);
         let peer = self.clone();
         let serve = tokio::spawn(async move {
             let mut controller_side = controller_side;
@@ -308,6 +309,45 @@ impl SimPeer {
         bench
     }
 
+    /// On instant time: starts the move `command` on the serial link, lets `share` (0 to 1)
+    /// of its planned duration pass and cuts the power there, as [`Self::kill`] does; returns
+    /// the bench as the next start-up finds it. A power cut in the middle of a move, for
+    /// tests and rehearsals of re-referencing.
+    pub fn cut_power_during(&self, command: Command, share: f64) -> anyhow::Result<Bench> {
+        anyhow::ensure!(
+            (0.0..=1.0).contains(&share),
+            "the share of the move must be 0 to 1, got {share}"
+        );
+        {
+            let mut core = self.core();
+            anyhow::ensure!(
+                core.clock().mode() == TimeMode::Instant,
+                "a power cut at a share of a move needs instant time"
+            );
+            let mut session = core.serial_session();
+            let request = Request {
+                id: optalign_protocol::RequestId(rand::random()),
+                command,
+            };
+            let duration_ms = match core.handle(&mut session, &request).as_slice() {
+                [
+                    PeerMessage::Reply {
+                        reply: optalign_protocol::Reply::MoveStarted { duration_ms },
+                        ..
+                    },
+                ] => *duration_ms,
+                other => anyhow::bail!("the move was not started: {other:?}"),
+            };
+            let now = core.clock().now_us();
+            let cut_at = now + (share * f64::from(duration_ms) * 1000.0) as u64;
+            core.clock_mut().jump_to(cut_at);
+            // The steps due by then, and no more: the motion loop waits for this lock.
+            core.poll();
+            core.cut_power();
+        }
+        Ok(self.kill())
+    }
+
     /// Stops serving and stepping.
     pub fn shutdown(&self) {
         for task in lock(&self.tasks).drain(..) {
@@ -400,8 +440,8 @@ async fn motion_loop(
             let mut core = lock(&core);
             let (notes, deadline) = core.poll();
             let wait = deadline.map(|d| core.clock().wall_time_until(d));
-            if let (Some(deadline), TimeMode::Instant) = (deadline, core.clock().mode()) {
-                core.clock_mut().jump_to(deadline);
+            if let Some(deadline) = deadline {
+                core.jump_towards(deadline);
             }
             (notes, deadline, wait)
         };

@@ -16,27 +16,35 @@ use tokio::io::{AsyncBufReadExt, BufReader};
 use tokio::process::{Child, Command};
 
 use crate::BIN;
-const KEY: &str = "rehearsal-test-key";
+pub(crate) const KEY: &str = "rehearsal-test-key";
+/// The default scene binned by 4: responses, beam radii and fringe period scaled by 1/4.
+pub(crate) const SMALL_SCENE: &str = include_str!("../../../docs/scenarios/binned.toml");
 
 /// A rehearsal peer in its own process, and the rig file it wrote.
-struct Bench {
-    _peer: Child,
-    rig: PathBuf,
+pub(crate) struct Bench {
+    pub(crate) peer: Child,
+    pub(crate) rig: PathBuf,
 }
 
 async fn rehearsal_bench(dir: &Path, extra: &[&str]) -> Bench {
-    let scenario = Path::new(env!("CARGO_MANIFEST_DIR")).join("../docs/scenarios/binned.toml");
+    rehearsal_bench_at(dir, 3, "0", extra).await
+}
+
+/// The rehearsal Michelson of `seed` on the small scene, its clock `time_scale` times real
+/// time (0: instant), with `extra` arguments; its rig file is `dir/rig.toml`.
+pub(crate) async fn rehearsal_bench_at(
+    dir: &Path,
+    seed: u64,
+    time_scale: &str,
+    extra: &[&str],
+) -> Bench {
+    let scenario = dir.join("small.toml");
+    std::fs::write(&scenario, SMALL_SCENE).unwrap();
     let rig = dir.join("rig.toml");
     let mut peer = Command::new(BIN)
-        .args([
-            "peer",
-            "--scene",
-            "michelson",
-            "--seed",
-            "3",
-            "--time-scale",
-            "0",
-        ])
+        .args(["peer", "--scene", "michelson", "--seed"])
+        .arg(seed.to_string())
+        .args(["--time-scale", time_scale])
         .args(["--listen", "127.0.0.1:0", "--camera-listen", "127.0.0.1:0"])
         .args(["--key", KEY, "--scenario"])
         .arg(&scenario)
@@ -59,11 +67,11 @@ async fn rehearsal_bench(dir: &Path, extra: &[&str]) -> Bench {
             break;
         }
     }
-    Bench { _peer: peer, rig }
+    Bench { peer, rig }
 }
 
 /// Runs `optalign ARGS` in `dir` as a user would, with the bench's key.
-async fn optalign(dir: &Path, args: &[&str]) -> (Output, String) {
+pub(crate) async fn optalign(dir: &Path, args: &[&str]) -> (Output, String) {
     let output = Command::new(BIN)
         .args(args)
         .current_dir(dir)

@@ -98,6 +98,7 @@ pub fn command() -> impl Strategy<Value = Command> {
         any::<u32>().prop_map(|request| Command::MoveResult {
             request: RequestId(request)
         }),
+        axis_values().prop_map(|deltas| Command::RecoveryMoveBy { deltas }),
     ]
 }
 

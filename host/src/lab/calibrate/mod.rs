@@ -6,7 +6,7 @@ pub mod backlash;
 mod chart;
 pub mod fit;
 pub mod response;
-mod track;
+pub(crate) mod track;
 pub mod trust;
 
 pub use backlash::{BacklashReport, calibrate_backlash};

@@ -95,9 +95,12 @@ pub async fn calibrate_response(
             let target = [start[axes[0]] + da, start[axes[1]] + db];
             rig.move_to(&[(axes[0], target[0]), (axes[1], target[1])])
                 .await?;
+            // The fit is in task positions, not in the visible settings of `target`.
+            let positions = rig.task_positions();
+            let at = [positions[axes[0]], positions[axes[1]]];
             let beams = find_beams(&Picture::new(&rig.capture().await?));
             let prediction = fit_affine(&steps, &measured)
-                .map(|fit| fit.predict([f64::from(target[0]), f64::from(target[1])]))
+                .map(|fit| fit.predict(at))
                 .unwrap_or(last);
             let Some(beam) = probe.track(&beams, prediction) else {
                 tracing::warn!(
@@ -114,8 +117,7 @@ pub async fn calibrate_response(
                 );
                 continue;
             };
-            let positions = rig.task_positions();
-            steps.push([positions[axes[0]], positions[axes[1]]]);
+            steps.push(at);
             measured.push(centre);
             uncertainties.push(beam.uncertainty);
         }
@@ -155,6 +157,11 @@ pub async fn calibrate_response(
             matrix_px_per_step: fit.matrix,
             residual_rms_px: fit.residual_rms,
             points: steps.len(),
+            stationary_px: probe
+                .stationary
+                .iter()
+                .max_by(|a, b| a.signal.total_cmp(&b.signal))
+                .map(|beam| track::anchor_centre(&before, beam)),
         },
         points,
         doubts,

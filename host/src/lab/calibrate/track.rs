@@ -2,7 +2,7 @@
 //! a probe move of the axis, then what appeared and vanished between the frames before
 //! and after it. The beams that stayed put are remembered so a scan never follows them.
 
-use crate::imaging::{Beam, Picture, changes, find_beams, nearest};
+use crate::imaging::{Beam, Picture, changes, core_centre, find_beams, nearest};
 
 /// A beam closer than this to where it was counts as not moved, px.
 const STILL_PX: f64 = 2.0;
@@ -28,17 +28,20 @@ pub fn probe(before: &Picture, after: &Picture) -> Option<Probe> {
     let seen_before = find_beams(before);
     let seen_after = find_beams(after);
     let difference = changes(before, after);
-    let appeared = difference
-        .appeared
-        .iter()
-        .max_by(|a, b| a.signal.total_cmp(&b.signal))?;
-    let to = *nearest(&seen_after, appeared.centre)?;
-    let from = match difference
-        .vanished
-        .iter()
-        .max_by(|a, b| a.signal.total_cmp(&b.signal))
-    {
-        Some(vanished) => *nearest(&seen_before, vanished.centre)?,
+    // The strongest change that is not the residue of a beam that stayed (a bright beam's
+    // flicker or a pixel of jitter leaves more difference than a dim beam that moved).
+    let moved = |changed: &[Beam], seen: &[Beam], other: &[Beam]| -> Option<Beam> {
+        let mut changed = changed.to_vec();
+        changed.sort_by(|a, b| b.signal.total_cmp(&a.signal));
+        changed
+            .iter()
+            .filter_map(|c| nearest(seen, c.centre))
+            .find(|beam| !stayed(beam, other))
+            .copied()
+    };
+    let to = moved(&difference.appeared, &seen_after, &seen_before)?;
+    let from = match moved(&difference.vanished, &seen_before, &seen_after) {
+        Some(vanished) => vanished,
         None => *nearest(&seen_before, to.centre)?,
     };
     if distance(from.centre, to.centre) <= STILL_PX {
@@ -57,6 +60,11 @@ pub fn probe(before: &Picture, after: &Picture) -> Option<Probe> {
         to,
         stationary,
     })
+}
+
+/// Whether `beam` is also in `other` at the same place.
+fn stayed(beam: &Beam, other: &[Beam]) -> bool {
+    nearest(other, beam.centre).is_some_and(|o| distance(o.centre, beam.centre) <= STILL_PX)
 }
 
 impl Probe {
@@ -88,6 +96,16 @@ pub fn measured_centre(beam: &Beam) -> Option<[f64; 2]> {
     beam.fit
         .filter(|fit| fit.misfit <= MAX_FIT_MISFIT)
         .map(|fit| fit.centre)
+}
+
+/// Share of its peak above which a beam that stays put is located: its bright core, which
+/// faint light nearby (another beam passing its halo) does not pull.
+const CORE_SHARE: f64 = 0.5;
+
+/// Where a beam that stays put (the cavity's primary) is, to measure another from it: the
+/// centre of its bright core, else its centroid.
+pub fn anchor_centre(picture: &Picture, beam: &Beam) -> [f64; 2] {
+    core_centre(picture, beam, CORE_SHARE).unwrap_or(beam.centre)
 }
 
 pub fn distance(a: [f64; 2], b: [f64; 2]) -> f64 {
@@ -127,6 +145,37 @@ mod tests {
         assert!(distance(tracked.centre, [250.0, 120.0]) < 1.0);
         // Nothing moved: no probe.
         assert!(probe_of_still().is_none());
+    }
+
+    /// The bright beam of `picture` shifted by a pixel and a tenth brighter: the residue
+    /// a laser's jitter and flicker leave in the difference.
+    fn jittered(moving: [f64; 2]) -> Picture {
+        Picture::new(
+            &Scene::new(320, 240)
+                .background(10.0, [0.0, 0.0])
+                .gaussian([81.0, 80.0], 14.0, 220.0)
+                .gaussian(moving, 12.0, 30.0)
+                .noise(2.0, 8)
+                .frame(),
+        )
+    }
+
+    #[test]
+    fn the_residue_of_a_bright_beam_that_stayed_is_not_taken_for_the_moved_beam() {
+        let before = Picture::new(
+            &Scene::new(320, 240)
+                .background(10.0, [0.0, 0.0])
+                .gaussian([80.0, 80.0], 14.0, 200.0)
+                .gaussian([200.0, 150.0], 12.0, 30.0)
+                .noise(2.0, 7)
+                .frame(),
+        );
+        let probe = probe(&before, &jittered([230.0, 140.0])).unwrap();
+        assert!(distance(probe.to.centre, [230.0, 140.0]) < 1.0, "{probe:?}");
+        assert!(
+            distance(probe.from.centre, [200.0, 150.0]) < 1.0,
+            "{probe:?}"
+        );
     }
 
     fn probe_of_still() -> Option<Probe> {

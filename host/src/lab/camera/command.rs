@@ -141,4 +141,49 @@ mod tests {
             assert!(apart < 0.5, "centres {centres:?}");
         }
     }
+
+    /// The command camera table docs/lab.md gives as its recipe.
+    fn documented_recipe() -> crate::lab::rigfile::CameraSpec {
+        let doc = include_str!("../../../../docs/lab.md");
+        let block = doc
+            .split("<!-- command camera recipe -->")
+            .nth(1)
+            .and_then(|rest| rest.split("```toml").nth(1))
+            .and_then(|rest| rest.split("```").next())
+            .expect("docs/lab.md has the command camera recipe");
+        let table: toml::Table = toml::from_str(block).unwrap();
+        table["camera"].clone().try_into().unwrap()
+    }
+
+    #[tokio::test]
+    async fn the_documented_ffmpeg_recipe_reads_what_the_tool_writes() {
+        let crate::lab::rigfile::CameraSpec::Command {
+            mut argv,
+            timeout_s,
+        } = documented_recipe()
+        else {
+            panic!("the recipe is not a command camera");
+        };
+        assert_eq!(argv[0], "ffmpeg");
+        let dir = tempfile::tempdir().unwrap();
+        let frame = Frame::new(16, 16, (0..=255).rev().collect()).unwrap();
+        let source = dir.path().join("grabbed.png");
+        std::fs::write(&source, frame.encode_png().unwrap()).unwrap();
+        // Stands in for ffmpeg: checks the arguments that matter, then writes one PNG where
+        // the last argument says, as ffmpeg does.
+        let tool = dir.path().join("ffmpeg");
+        std::fs::write(
+            &tool,
+            format!(
+                "#!/bin/sh\nfor last; do :; done\ncase \"$*\" in *'-f video4linux2'*'-i /dev/video0'*'-frames:v 1'*'-pix_fmt gray'*) ;; *) echo \"unexpected: $*\" >&2; exit 2;; esac\ncase \"$last\" in *.png) cp '{}' \"$last\";; *) echo \"not a PNG path: $last\" >&2; exit 3;; esac\n",
+                source.display()
+            ),
+        )
+        .unwrap();
+        use std::os::unix::fs::PermissionsExt;
+        std::fs::set_permissions(&tool, std::fs::Permissions::from_mode(0o755)).unwrap();
+        argv[0] = tool.to_string_lossy().into_owned();
+        let mut camera = CommandCamera::new(argv, Duration::from_secs_f64(timeout_s)).unwrap();
+        assert_eq!(camera.capture().await.unwrap(), frame);
+    }
 }

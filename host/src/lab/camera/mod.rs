@@ -9,7 +9,7 @@ mod folder;
 mod http;
 mod image_file;
 mod sim;
-#[cfg(feature = "v4l2")]
+#[cfg(target_os = "linux")]
 mod v4l2;
 
 use async_trait::async_trait;
@@ -20,8 +20,8 @@ pub use folder::FolderCamera;
 pub use http::HttpCamera;
 pub use image_file::{decode_image, decode_image_bytes};
 pub use sim::{SimCamera, SimScene, SimView};
-#[cfg(feature = "v4l2")]
-pub use v4l2::V4l2Camera;
+#[cfg(target_os = "linux")]
+pub use v4l2::{PIXEL_FORMATS, V4l2Camera, usable_format};
 
 /// A source of camera frames.
 #[async_trait]
