@@ -25,8 +25,11 @@ pub enum MotorPath {
     Peer,
 }
 
-/// Key the rig provisions on its own peer.
-const RIG_KEY: &str = "optalign-sim-rig";
+/// Key the rig provisions on its own peer: a derived key (`hex:`), not a passphrase. A
+/// passphrase is stretched with Argon2id (19 MiB, two passes) whenever a controller or a
+/// client meets it, so every rig start paid that once in process and twice over loopback:
+/// a third of a Python environment's time went into the stretching at its resets.
+const RIG_KEY: &str = "hex:54554664107462e39b10354aab854182efa3920f126c926282ac1281874d9637";
 
 /// The simulated controller a rig moves.
 pub enum SimMotors {
@@ -83,7 +86,7 @@ impl SimMotors {
                     port: address.port(),
                 };
                 let client_options = ClientOptions {
-                    key: Some(crate::link::AccessKey::passphrase(RIG_KEY)),
+                    key: Some(RIG_KEY.parse()?),
                     ..ClientOptions::default()
                 };
                 let client = Client::connect(endpoint, client_options).await?;
