@@ -46,7 +46,7 @@ fn row(record: &RunRecord) -> Vec<(&'static str, serde_json::Value)> {
 const POLICIES: [&str; 4] = ["vision", "bo", "random", "manual"];
 
 /// Refuses a policy Python cannot run, saying which it can.
-fn check_policy(name: &str) -> PyResult<()> {
+pub fn check_policy(name: &str) -> PyResult<()> {
     match name {
         _ if POLICIES.contains(&name) => Ok(()),
         "vlm" => Err(invalid(

@@ -1,7 +1,7 @@
 //! Runs the Python package's pytest suite as part of `cargo test --workspace`: a virtual
-//! environment under the target folder (made once, with maturin, pytest, gymnasium and
-//! numpy from PyPI), the module built into it with `maturin develop`, then `pytest
-//! python/tests`. Skipped, loudly, only when there is no `python3` at all;
+//! environment under the target folder (made once, with maturin, pytest, gymnasium, numpy
+//! and the `bluesky` extra's bluesky and ophyd-async from PyPI), the module built into it
+//! with `maturin develop`, then `pytest python/tests`. Skipped, loudly, only when there is no `python3` at all;
 //! `OPTALIGN_PYTHON` names another interpreter.
 
 use std::path::{Path, PathBuf};
@@ -11,8 +11,11 @@ use std::process::Command;
 const REQUIREMENTS: &[&str] = &[
     "maturin>=1.9,<2",
     "pytest>=7",
-    "gymnasium>=0.29,<2",
+    "gymnasium>=1.1,<2",
     "numpy>=1.22",
+    // The `bluesky` extra, for the tests of optalign.bluesky under a real RunEngine.
+    "bluesky>=1.14",
+    "ophyd-async>=0.21,<0.22",
 ];
 
 fn python() -> Option<String> {
