@@ -91,22 +91,20 @@ class _AlignmentEnv(gymnasium.Env):
         if episode_seed < 0:
             raise ValueError(f"seed must be >= 0, got {episode_seed}")
         self._image = self._frame(self._episode.reset(episode_seed))
-        info = self._info()
+        info = self._info(self._episode.evaluations())
         info["seed"] = episode_seed
         return self._observation(), info
 
     def step(self, action):
-        image, rejected = self._act(action)
+        image, rejected, (error, success, evaluations, rejections) = self._act(action)
         if image is not None:
             self._image = self._frame(image)
-        reward = -self._error()
-        evaluations = self._episode.evaluations()
-        terminated = (self._declared_done(action) and rejected is None) or self._episode.success()
+        reward = -self._reward_error(error)
+        terminated = (self._declared_done(action) and rejected is None) or success
         truncated = not terminated and (
-            evaluations >= self.budget
-            or self._episode.rejections_in_row() >= MAX_REJECTIONS_IN_ROW
+            evaluations >= self.budget or rejections >= MAX_REJECTIONS_IN_ROW
         )
-        info = self._info()
+        info = self._info(evaluations)
         if rejected is not None:
             info["rejected"] = rejected
         return self._observation(), reward, terminated, truncated, info
@@ -118,7 +116,9 @@ class _AlignmentEnv(gymnasium.Env):
 
     # -- for the subclasses ---------------------------------------------------------------
 
-    def _act(self, action) -> Tuple[Any, Optional[str]]:
+    def _act(self, action) -> Tuple[Any, Optional[str], tuple]:
+        """Carries out ``action``: (the next image or None, the reason it was rejected or
+        None, (true error, success, evaluations, rejections in a row))."""
         raise NotImplementedError
 
     def _declared_done(self, action) -> bool:
@@ -127,14 +127,14 @@ class _AlignmentEnv(gymnasium.Env):
     def _observation(self):
         return self._image
 
-    def _error(self) -> float:
-        return float(self._episode.error())
+    def _reward_error(self, error: Optional[float]) -> float:
+        """The error the reward counts."""
+        return float(error)
 
     def _frame(self, pixels) -> np.ndarray:
         return np.frombuffer(pixels, dtype=np.uint8).reshape(self._shape)
 
-    def _info(self) -> dict:
-        evaluations = self._episode.evaluations()
+    def _info(self, evaluations: int) -> dict:
         info = {"evaluations": evaluations, "remaining": self.budget - evaluations}
         if self.privileged_info:
             truth = json.loads(self._episode.truth_json())
@@ -287,6 +287,5 @@ class RelayEnv(_AlignmentEnv):
     def _observation(self):
         return {"image": self._image, "station": self._episode.station()}
 
-    def _error(self) -> float:
-        error = self._episode.error()
+    def _reward_error(self, error: Optional[float]) -> float:
         return self.dark_error if error is None else float(error)

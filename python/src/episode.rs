@@ -11,7 +11,7 @@ use pyo3::prelude::*;
 use pyo3::types::PyByteArray;
 
 use crate::errors::{failed, invalid};
-use crate::stepper::{Acted, Setup, StepError, Stepper, steps};
+use crate::stepper::{Acted, Setup, State, StepError, Stepper, steps};
 
 /// A simulated episode of one task.
 #[pyclass(module = "optalign._native")]
@@ -20,8 +20,9 @@ pub struct Episode {
     stepper: Mutex<Stepper>,
 }
 
-/// What a step hands Python: the next image, or the reason the action was rejected.
-type Stepped<'py> = (Option<Bound<'py, PyByteArray>>, Option<String>);
+/// What a step hands Python: the next image, or the reason the action was rejected, and
+/// the episode's state after it.
+type Stepped<'py> = (Option<Bound<'py, PyByteArray>>, Option<String>, State);
 
 #[pymethods]
 impl Episode {
@@ -136,11 +137,6 @@ impl Episode {
         Ok(self.lock()?.live()?.evaluations)
     }
 
-    /// Rejected actions since the last executed one.
-    fn rejections_in_row(&self) -> PyResult<usize> {
-        Ok(self.lock()?.live()?.rejections_in_row)
-    }
-
     /// The relay camera's station, 0 = C1 .. 7 = C8 (C8 for the other tasks).
     fn station(&self) -> PyResult<usize> {
         Ok(self.lock()?.live()?.rules.relay().station.index())
@@ -183,9 +179,10 @@ impl Episode {
         let stepper: &mut Stepper = &mut guard;
         let acted: Result<Acted, StepError> =
             py.detach(|| stepper.act(&action, rejection_is_an_error));
+        let state = stepper.state()?;
         Ok(match acted? {
-            Acted::Image(image) => (Some(PyByteArray::new(py, &image)), None),
-            Acted::Rejected(reason) => (None, Some(reason)),
+            Acted::Image(image) => (Some(PyByteArray::new(py, &image)), None, state),
+            Acted::Rejected(reason) => (None, Some(reason), state),
         })
     }
 }

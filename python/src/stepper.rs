@@ -48,6 +48,11 @@ impl From<StepError> for PyErr {
     }
 }
 
+/// An episode's state after a step or reset: (true error, success, evaluations, rejected
+/// actions in a row). Hidden truth in the first two: the Python side turns them into the
+/// reward and the termination.
+pub type State = (Option<f64>, bool, usize, usize);
+
 /// What an action came to: the next image (8-bit, row by row), or the reason it was
 /// rejected without moving anything or spending an evaluation.
 pub enum Acted {
@@ -194,10 +199,6 @@ impl Stepper {
         })
     }
 
-    pub fn setup(&self) -> &Setup {
-        &self.setup
-    }
-
     /// Starts the episode of `seed`; returns the first image.
     pub fn reset(&mut self, seed: u64) -> anyhow::Result<Vec<u8>> {
         let setup = &self.setup;
@@ -238,6 +239,18 @@ impl Stepper {
     /// Whether the state now meets the task's success rule. Hidden truth.
     pub fn success(&self) -> Result<bool, StepError> {
         Ok(is_success(&self.score()?, &self.setup.scenario.tasks))
+    }
+
+    /// The state after the last step or reset.
+    pub fn state(&self) -> Result<State, StepError> {
+        let live = self.live()?;
+        let score = live.rig.score();
+        Ok((
+            score.error(),
+            is_success(&score, &self.setup.scenario.tasks),
+            live.evaluations,
+            live.rejections_in_row,
+        ))
     }
 
     /// The hidden state as JSON: the score and the true shaft positions.

@@ -6,22 +6,16 @@
 use std::path::PathBuf;
 use std::sync::{Arc, Mutex, MutexGuard};
 
-use optalign::run::is_success;
 use optalign::task::{Action, TaskKind};
 use pyo3::exceptions::PyRuntimeError;
 use pyo3::prelude::*;
 use pyo3::types::PyByteArray;
 
 use crate::errors::invalid;
-use crate::stepper::{Acted, Setup, StepError, Stepper};
+use crate::stepper::{Acted, Setup, State, StepError, Stepper};
 
 /// Most episodes one batch may hold.
 const MAX_EPISODES: usize = 4096;
-
-/// Each episode's state after a step or reset: (true error, success, evaluations, rejected
-/// actions in a row). Hidden truth in the first two: the Python side turns them into
-/// rewards and terminations.
-type State = (Option<f64>, bool, usize, usize);
 
 /// A batch of episodes of one task (Michelson or cavity).
 #[pyclass(module = "optalign._native")]
@@ -257,14 +251,7 @@ fn carry_out(
                 )));
             }
             slot.copy_from_slice(&image);
-            let score = stepper.score()?;
-            let live = stepper.live()?;
-            Ok((
-                score.error(),
-                is_success(&score, &stepper.setup().scenario.tasks),
-                live.evaluations,
-                live.rejections_in_row,
-            ))
+            stepper.state()
         })
         .collect()
 }
