@@ -151,3 +151,25 @@ def test_the_documented_example_runs_and_is_the_one_in_the_docs():
     assert "rig-camera-x" in done.stdout, "the live table's header"
     assert done.stdout.count("|") > 7 * 5, "a row per scan point"
     assert "outcome: aligned: error" in done.stdout
+
+
+def test_an_abort_mid_alignment_ends_the_run_with_the_motion_stopped(RE, documents):
+    with simulated_rig("cavity", seed=0, obs_size=(320, 256), time_scale=1.0) as rig:
+
+        def abort_in_the_second_move(name, doc):
+            if name == "event" and doc["seq_num"] == 1 and "action-text" in doc["data"]:
+                threading.Timer(0.1, RE.abort).start()
+
+        token = RE.subscribe(abort_in_the_second_move)
+        try:
+            with pytest.raises(RunEngineInterrupted):
+                RE(align("cavity", rig, policy="random"))
+        finally:
+            RE.unsubscribe(token)
+        status = rig.controller.client.status()
+        assert not any(axis["moving"] for axis in status["axes"]), "at rest once aborted"
+        shafts = rig.peer.shaft_positions()
+        time.sleep(0.2)
+        assert rig.peer.shaft_positions() == shafts
+    stop = next(doc for name, doc in documents if name == "stop")
+    assert stop["exit_status"] == "abort"

@@ -21,11 +21,13 @@ import json
 from typing import Any, Dict, Optional
 
 import bluesky.plan_stubs as bps
+from bluesky.utils import FailedStatus
 import numpy as np
 from ophyd_async.core import Array1D, StandardReadable, soft_signal_r_and_setter
 from ophyd_async.plan_stubs import ensure_connected
 
 from .. import _native
+from .._native import ControllerError
 from .rig import SimulatedRig
 
 
@@ -78,8 +80,7 @@ class _Outcome(StandardReadable):
         self._set_terminal_error(nan if terminal is None else float(terminal))
         self._set_best_error(nan if best is None else float(best))
         self._set_evaluations(int(summary["evaluations_used"]))
-        failure = summary.get("failure")
-        self._set_failure("" if failure is None else failure["reason"])
+        self._set_failure(summary.get("failure") or "")
 
 
 def _outcome_text(summary: dict) -> str:
@@ -93,7 +94,7 @@ def _outcome_text(summary: dict) -> str:
     if summary["declared_done"]:
         text += ", declared done"
     if summary.get("failure"):
-        text += f"; {summary['failure']['reason']}"
+        text += f"; {summary['failure']}"
     return text
 
 
@@ -163,7 +164,7 @@ def align(task: str, rig: SimulatedRig, policy: str = "vision", md: Optional[dic
             try:
                 yield from _carry_out(rig, orders)
                 yield from bps.trigger(rig.camera, wait=True)
-            except Exception as error:  # the controller's refusal or report ends the run
+            except (FailedStatus, ControllerError) as error:  # the controller's refusal or report
                 failure = error
                 session.failed(f"executing {orders['action']}: {error}")
                 continue
