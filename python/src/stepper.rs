@@ -145,6 +145,11 @@ impl Setup {
         self.scenario.tasks.budget(self.task)
     }
 
+    /// The scenario's task bounds and budgets, as JSON (`[tasks]` of the scenario file).
+    pub fn limits_json(&self) -> Result<String, String> {
+        serde_json::to_string(&self.scenario.tasks).map_err(|e| e.to_string())
+    }
+
     /// The absolute command of the Michelson or the cavity, one setting per axis; `done`
     /// declares the task done after it.
     pub fn command(&self, command: &[i64], done: bool) -> Result<Action, String> {

@@ -137,7 +137,7 @@ impl VectorEpisodes {
 
     /// The scenario's task bounds and budgets, as JSON (`[tasks]` of the scenario file).
     fn limits_json(&self) -> PyResult<String> {
-        serde_json::to_string(&self.setup.scenario.tasks).map_err(invalid)
+        self.setup.limits_json().map_err(invalid)
     }
 
     fn budget(&self) -> usize {
