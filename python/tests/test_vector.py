@@ -10,6 +10,14 @@ import optalign  # noqa: F401  (registers the environments)
 from optalign.vector import MichelsonVectorEnv
 
 
+def _small_moves(seed, steps, envs, axes):
+    """Random commands of a few hundred steps: the suite's unoptimised build steps the
+    simulated firmware slowly, and long moves test nothing more."""
+    generator = np.random.default_rng(seed)
+    for _ in range(steps):
+        yield generator.integers(-400, 400, size=(envs, axes))
+
+
 def _single_episodes(env_id, seeds, actions, **kwargs):
     """What single environments give under ``actions[t][i]``, with Gymnasium's next-step
     autoreset done by hand (a reset without a seed, from the environment's generator)."""
@@ -46,24 +54,29 @@ def _compare(vector, seeds, actions, firsts, steps):
                 assert info["evaluations"][i] == e_evals
 
 
-def test_each_michelson_in_the_batch_is_the_single_environment_with_its_seed():
+def test_each_michelson_in_the_batch_is_the_single_environment_with_its_seed(tmp_path):
+    scenario = tmp_path / "short.toml"
+    scenario.write_text("[tasks.michelson]\nbudget = 4\n")
+    kwargs = dict(obs_size=(160, 90), scenario=scenario)
     seeds = [3, 4, 5]
-    vector = gymnasium.make_vec("optalign/Michelson-v0", num_envs=3, obs_size=(160, 90))
+    vector = gymnasium.make_vec("optalign/Michelson-v0", num_envs=3, **kwargs)
     assert isinstance(vector, MichelsonVectorEnv)
-    vector.action_space.seed(7)
-    # 65 steps: past the budget of 60, so every environment truncates and autoresets.
-    actions = [vector.action_space.sample() for _ in range(65)]
-    firsts, steps = _single_episodes("optalign/Michelson-v0", seeds, actions, obs_size=(160, 90))
+    # 11 steps: past the budget of 4 twice, so every environment truncates and autoresets.
+    actions = list(_small_moves(7, 11, 3, 4))
+    firsts, steps = _single_episodes("optalign/Michelson-v0", seeds, actions, **kwargs)
     assert any(s[3] for row in steps for s in row), "the episodes reach their truncation"
     _compare(vector, seeds, actions, firsts, steps)
 
 
-def test_cavities_that_declare_done_terminate_and_restart_like_single_ones():
+def test_environments_that_declare_done_terminate_and_restart_like_single_ones():
     seeds = [0, 9]
-    kwargs = dict(obs_size=(64, 51), done_action=True)
-    vector = gymnasium.make_vec("optalign/Cavity-v0", num_envs=2, threads=2, **kwargs)
-    actions = [np.array([[100 * t, -50 * t, int(t % 4 == 3)], [-30 * t, 70, 0]]) for t in range(9)]
-    firsts, steps = _single_episodes("optalign/Cavity-v0", seeds, actions, **kwargs)
+    kwargs = dict(obs_size=(160, 90), done_action=True)
+    vector = gymnasium.make_vec("optalign/Michelson-v0", num_envs=2, threads=2, **kwargs)
+    actions = [
+        np.array([[100 * t, -50 * t, 0, 20, int(t == 3)], [-30 * t, 70, 10, 0, 0]])
+        for t in range(6)
+    ]
+    firsts, steps = _single_episodes("optalign/Michelson-v0", seeds, actions, **kwargs)
     assert steps[3][0][2] and not steps[3][1][2], "env 0 declares done at step 3"
     _compare(vector, seeds, actions, firsts, steps)
 
@@ -73,11 +86,10 @@ def test_the_threads_change_nothing_but_the_speed():
     for threads in (1, 2):
         vector = MichelsonVectorEnv(num_envs=4, obs_size=(160, 90), threads=threads)
         assert vector.threads == threads
-        vector.action_space.seed(1)
         obs, _ = vector.reset(seed=20)
         frames = [obs]
-        for _ in range(5):
-            obs, rewards, _, _, _ = vector.step(vector.action_space.sample())
+        for action in _small_moves(1, 4, 4, 4):
+            obs, rewards, _, _, _ = vector.step(action)
             frames.append(obs.copy())
             frames.append(rewards)
         results.append(frames)
