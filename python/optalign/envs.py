@@ -36,12 +36,20 @@ ENV_IDS = {
     "optalign/Relay-v0": "optalign.envs:RelayEnv",
 }
 
+#: The native vector environments (``gymnasium.make_vec`` picks them by default).
+VECTOR_IDS = {
+    "optalign/Michelson-v0": "optalign.vector:MichelsonVectorEnv",
+    "optalign/Cavity-v0": "optalign.vector:CavityVectorEnv",
+}
+
 
 def register_envs() -> None:
     """Registers the three environments with Gymnasium (once)."""
     for env_id, entry_point in ENV_IDS.items():
         if env_id not in gymnasium.registry:
-            gymnasium.register(id=env_id, entry_point=entry_point)
+            gymnasium.register(
+                id=env_id, entry_point=entry_point, vector_entry_point=VECTOR_IDS.get(env_id)
+            )
 
 
 class _AlignmentEnv(gymnasium.Env):
@@ -83,22 +91,20 @@ class _AlignmentEnv(gymnasium.Env):
         if episode_seed < 0:
             raise ValueError(f"seed must be >= 0, got {episode_seed}")
         self._image = self._frame(self._episode.reset(episode_seed))
-        info = self._info()
+        info = self._info(self._episode.evaluations())
         info["seed"] = episode_seed
         return self._observation(), info
 
     def step(self, action):
-        image, rejected = self._act(action)
+        image, rejected, (error, success, evaluations, rejections) = self._act(action)
         if image is not None:
             self._image = self._frame(image)
-        reward = -self._error()
-        evaluations = self._episode.evaluations()
-        terminated = (self._declared_done(action) and rejected is None) or self._episode.success()
+        reward = -self._reward_error(error)
+        terminated = (self._declared_done(action) and rejected is None) or success
         truncated = not terminated and (
-            evaluations >= self.budget
-            or self._episode.rejections_in_row() >= MAX_REJECTIONS_IN_ROW
+            evaluations >= self.budget or rejections >= MAX_REJECTIONS_IN_ROW
         )
-        info = self._info()
+        info = self._info(evaluations)
         if rejected is not None:
             info["rejected"] = rejected
         return self._observation(), reward, terminated, truncated, info
@@ -110,7 +116,9 @@ class _AlignmentEnv(gymnasium.Env):
 
     # -- for the subclasses ---------------------------------------------------------------
 
-    def _act(self, action) -> Tuple[Any, Optional[str]]:
+    def _act(self, action) -> Tuple[Any, Optional[str], tuple]:
+        """Carries out ``action``: (the next image or None, the reason it was rejected or
+        None, (true error, success, evaluations, rejections in a row))."""
         raise NotImplementedError
 
     def _declared_done(self, action) -> bool:
@@ -119,14 +127,14 @@ class _AlignmentEnv(gymnasium.Env):
     def _observation(self):
         return self._image
 
-    def _error(self) -> float:
-        return float(self._episode.error())
+    def _reward_error(self, error: Optional[float]) -> float:
+        """The error the reward counts."""
+        return float(error)
 
     def _frame(self, pixels) -> np.ndarray:
         return np.frombuffer(pixels, dtype=np.uint8).reshape(self._shape)
 
-    def _info(self) -> dict:
-        evaluations = self._episode.evaluations()
+    def _info(self, evaluations: int) -> dict:
         info = {"evaluations": evaluations, "remaining": self.budget - evaluations}
         if self.privileged_info:
             truth = json.loads(self._episode.truth_json())
@@ -150,9 +158,35 @@ def _whole_steps(action, size: int, what: str) -> np.ndarray:
     values = np.asarray(action, dtype=np.float64).reshape(-1)
     if values.shape != (size,):
         raise ValueError(f"{what} takes {size} values, got {np.asarray(action).shape}")
+    return whole_steps(values, what)
+
+
+def whole_steps(values: np.ndarray, what: str) -> np.ndarray:
+    """Float or integer actions rounded to whole steps; non-finite ones refused."""
     if not np.all(np.isfinite(values)):
         raise ValueError(f"{what} must be finite numbers of steps, got {values.tolist()}")
     return np.rint(values).astype(np.int64)
+
+
+def command_space(limits: dict, task: str, done_action: bool) -> spaces.Box:
+    """The absolute command of the Michelson or the cavity: one setting per axis within
+    the task's ranges, and with ``done_action`` a last entry 0/1."""
+    ranges = limits[task]["ranges"]
+    low = [r["min"] for r in ranges]
+    high = [r["max"] for r in ranges]
+    if done_action:
+        low, high = low + [0], high + [1]
+    return spaces.Box(np.array(low, dtype=np.int32), np.array(high, dtype=np.int32), dtype=np.int32)
+
+
+def split_commands(values: np.ndarray, axes: int, done_action: bool):
+    """Whole-step actions, one row per environment, as (commands, done flags)."""
+    if not done_action:
+        return values, np.zeros(len(values), dtype=bool)
+    flags = values[:, axes]
+    if not np.all((flags == 0) | (flags == 1)):
+        raise ValueError(f"the done entry must be 0 or 1, got {flags.tolist()}")
+    return values[:, :axes], flags == 1
 
 
 class _AbsoluteEnv(_AlignmentEnv):
@@ -163,25 +197,16 @@ class _AbsoluteEnv(_AlignmentEnv):
 
     def __init__(self, task: str, done_action: bool = False, **kwargs):
         super().__init__(task, **kwargs)
-        ranges = self.limits[task]["ranges"]
-        low = [r["min"] for r in ranges]
-        high = [r["max"] for r in ranges]
         self.done_action = bool(done_action)
-        if self.done_action:
-            low, high = low + [0], high + [1]
-        self.action_space = spaces.Box(
-            np.array(low, dtype=np.int32), np.array(high, dtype=np.int32), dtype=np.int32
-        )
+        self.action_space = command_space(self.limits, task, self.done_action)
         self.observation_space = self.image_space
 
     def _act(self, action):
-        size = len(self.axis_names) + int(self.done_action)
-        values = _whole_steps(action, size, f"the {self.__class__.__name__} action")
-        command = values[: len(self.axis_names)]
-        done = bool(self.done_action and values[-1] >= 1)
-        if self.done_action and values[-1] not in (0, 1):
-            raise ValueError(f"the done entry must be 0 or 1, got {values[-1]}")
-        return self._episode.act_command([int(v) for v in command], done)
+        values = _whole_steps(
+            action, self.action_space.shape[0], f"the {self.__class__.__name__} action"
+        )
+        commands, done = split_commands(values[None, :], len(self.axis_names), self.done_action)
+        return self._episode.act_command([int(v) for v in commands[0]], bool(done[0]))
 
     def _declared_done(self, action) -> bool:
         return bool(self.done_action and np.rint(np.asarray(action).reshape(-1)[-1]) >= 1)
@@ -262,6 +287,5 @@ class RelayEnv(_AlignmentEnv):
     def _observation(self):
         return {"image": self._image, "station": self._episode.station()}
 
-    def _error(self) -> float:
-        error = self._episode.error()
+    def _reward_error(self, error: Optional[float]) -> float:
         return self.dark_error if error is None else float(error)

@@ -25,6 +25,23 @@ class SimulatedPeer:
     ):
         self._native = _native.SimulatedPeer(axes, key, backlash, time_scale, port)
 
+    @classmethod
+    def for_rig(
+        cls,
+        task: str,
+        seed: int,
+        scenario: Optional[str] = None,
+        key: Optional[str] = None,
+        time_scale: Optional[float] = None,
+    ) -> "SimulatedPeer":
+        """The simulated controller of ``task``'s rig for ``seed``, as ``optalign run
+        --sim`` moves it: the scenario's mounts (backlash, pitch error, hysteresis, lost
+        steps drawn for the seed) and axis settings. ``time_scale=None`` runs it on
+        instant time: a move ends as soon as it is sent."""
+        peer = cls.__new__(cls)
+        peer._native = _native.SimulatedPeer.for_rig(task, int(seed), scenario, key, time_scale)
+        return peer
+
     @property
     def url(self) -> str:
         """``tcp://127.0.0.1:PORT``."""

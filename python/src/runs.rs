@@ -10,9 +10,9 @@ use optalign::bench::{MatrixOptions, RunRecord, RunSpec, matrix, run_matrix, run
 use pyo3::prelude::*;
 use serde_json::json;
 
-use crate::episode::{load_scenario, parse_motors, parse_task};
 use crate::errors::{failed, invalid};
 use crate::runtime;
+use crate::stepper::{load_scenario, parse_motors, parse_task};
 
 /// The row of one run: the columns of `results.csv`, in its order.
 fn row(record: &RunRecord) -> Vec<(&'static str, serde_json::Value)> {
@@ -46,7 +46,7 @@ fn row(record: &RunRecord) -> Vec<(&'static str, serde_json::Value)> {
 const POLICIES: [&str; 4] = ["vision", "bo", "random", "manual"];
 
 /// Refuses a policy Python cannot run, saying which it can.
-fn check_policy(name: &str) -> PyResult<()> {
+pub fn check_policy(name: &str) -> PyResult<()> {
     match name {
         _ if POLICIES.contains(&name) => Ok(()),
         "vlm" => Err(invalid(
@@ -74,16 +74,16 @@ pub fn run_json(
 ) -> PyResult<String> {
     check_policy(policy)?;
     let spec = RunSpec {
-        task: parse_task(task)?,
+        task: parse_task(task).map_err(invalid)?,
         policy: policy.to_owned(),
         seed,
-        scenario: Arc::new(load_scenario(scenario)?),
+        scenario: Arc::new(load_scenario(scenario).map_err(invalid)?),
         setting: None,
         out_dir: out.clone(),
     };
     let options = MatrixOptions {
         jobs: 1,
-        motors: parse_motors(motors)?,
+        motors: parse_motors(motors).map_err(invalid)?,
         save_frames: out.is_some(),
         ..MatrixOptions::default()
     };
@@ -109,7 +109,7 @@ pub fn bench_json(
 ) -> PyResult<String> {
     let tasks = tasks
         .iter()
-        .map(|task| parse_task(task))
+        .map(|task| parse_task(task).map_err(invalid))
         .collect::<PyResult<Vec<_>>>()?;
     if tasks.is_empty() || policies.is_empty() {
         return Err(invalid("a bench needs at least one task and one policy"));
@@ -118,11 +118,11 @@ pub fn bench_json(
     for policy in &policies {
         check_policy(policy)?;
     }
-    let scenario = Arc::new(load_scenario(scenario)?);
+    let scenario = Arc::new(load_scenario(scenario).map_err(invalid)?);
     let specs = matrix(&tasks, &policies, &seeds, &scenario, None, None);
     let options = MatrixOptions {
         jobs: jobs.unwrap_or_else(optalign::bench::default_jobs),
-        motors: parse_motors(motors)?,
+        motors: parse_motors(motors).map_err(invalid)?,
         ..MatrixOptions::default()
     };
     let cores = optalign::bench::default_jobs();

@@ -1,15 +1,22 @@
 //! Runs the Python package's pytest suite as part of `cargo test --workspace`: a virtual
-//! environment under the target folder (made once, with pytest, gymnasium and numpy from
-//! PyPI), the package staged beside it (its Python sources and the extension module that
-//! this very `cargo test` built, so the module is not compiled a second time by maturin with
-//! other features), then `pytest python/tests`. Skipped, loudly, only when there is no
+//! environment under the target folder (made once, with pytest, gymnasium, numpy and the
+//! `bluesky` extra's bluesky and ophyd-async from PyPI), the package staged beside it (its
+//! Python sources and the extension module that this very `cargo test` built, so the module
+//! is not compiled a second time by maturin with other features), then `pytest python/tests`. Skipped, loudly, only when there is no
 //! `python3` at all; `OPTALIGN_PYTHON` names another interpreter.
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
 /// What the environment needs; a change here rebuilds it.
-const REQUIREMENTS: &[&str] = &["pytest>=7", "gymnasium>=0.29,<2", "numpy>=1.22"];
+const REQUIREMENTS: &[&str] = &[
+    "pytest>=7",
+    "gymnasium>=1.1,<2",
+    "numpy>=1.22",
+    // The `bluesky` extra, for the tests of optalign.bluesky under a real RunEngine.
+    "bluesky>=1.14",
+    "ophyd-async>=0.21,<0.22",
+];
 
 fn python() -> Option<String> {
     let name = std::env::var("OPTALIGN_PYTHON").unwrap_or_else(|_| "python3".into());

@@ -8,6 +8,7 @@ mod downsample;
 mod motors;
 mod score;
 mod sim;
+mod sim_camera;
 
 use async_trait::async_trait;
 use optalign_optics::Frame;
@@ -15,9 +16,10 @@ use optalign_optics::Frame;
 use crate::task::{Action, TaskKind};
 
 pub use controllers::{AxisView, ControllerView, fault_names};
-pub use motors::{MotorPath, SimMotors};
+pub use motors::{MotorPath, SimMotors, rig_axis_config, rig_peer_options};
 pub use score::{CameraView, RelayStateScore, Score};
 pub use sim::SimRig;
+pub use sim_camera::SimCamera;
 
 /// What executing one action produced.
 #[derive(Clone, Debug)]

@@ -25,8 +25,47 @@ pub enum MotorPath {
     Peer,
 }
 
-/// Key the rig provisions on its own peer.
-const RIG_KEY: &str = "optalign-sim-rig";
+/// Key the rig provisions on its own peer: a derived key (`hex:`), not a passphrase. A
+/// passphrase is stretched with Argon2id (19 MiB, two passes) whenever a controller or a
+/// client meets it, so every rig start paid that once in process and twice over loopback:
+/// a third of a Python environment's time went into the stretching at its resets.
+const RIG_KEY: &str = "hex:54554664107462e39b10354aab854182efa3920f126c926282ac1281874d9637";
+
+/// The simulated controller of a rig (without its key and time): `axes` axes on the
+/// mounts `mount` describes, seeded with `seed` for deterministic lost steps.
+pub fn rig_peer_options(axes: u8, mount: &MountParams, seed: u64) -> PeerOptions {
+    PeerOptions {
+        axes,
+        mechanics: MechanicsOptions {
+            backlash: mount.backlash_steps,
+            lost_step_probability: mount.lost_step_probability,
+            pitch_error: mount.pitch_error_steps,
+            pitch_period: mount.pitch_period_steps,
+            hysteresis: mount.hysteresis_steps,
+            seed,
+            ..MechanicsOptions::default()
+        },
+        state_file: None,
+        ..PeerOptions::default()
+    }
+}
+
+/// The configuration a rig gives each axis of its controller (from the axis's `current`
+/// one): the scenario's speeds and backlash compensation, soft limits far beyond any task's
+/// range.
+pub fn rig_axis_config(mount: &MountParams, current: AxisConfig) -> AxisConfig {
+    AxisConfig {
+        max_speed: mount.max_speed,
+        acceleration: mount.acceleration,
+        backlash: mount.compensation_steps,
+        backlash_mode: mount.compensation_mode.into(),
+        limits: SoftLimits {
+            min: -1_000_000,
+            max: 1_000_000,
+        },
+        ..current
+    }
+}
 
 /// The simulated controller a rig moves.
 pub enum SimMotors {
@@ -51,20 +90,9 @@ impl SimMotors {
         seed: u64,
     ) -> anyhow::Result<Self> {
         let options = PeerOptions {
-            axes: u8::try_from(axes).context("too many axes")?,
-            mechanics: MechanicsOptions {
-                backlash: mount.backlash_steps,
-                lost_step_probability: mount.lost_step_probability,
-                pitch_error: mount.pitch_error_steps,
-                pitch_period: mount.pitch_period_steps,
-                hysteresis: mount.hysteresis_steps,
-                seed,
-                ..MechanicsOptions::default()
-            },
             key: Some(RIG_KEY.into()),
-            state_file: None,
             time: TimeMode::Instant,
-            ..PeerOptions::default()
+            ..rig_peer_options(u8::try_from(axes).context("too many axes")?, mount, seed)
         };
         let mut motors = match path {
             MotorPath::InProcess => {
@@ -83,7 +111,7 @@ impl SimMotors {
                     port: address.port(),
                 };
                 let client_options = ClientOptions {
-                    key: Some(crate::link::AccessKey::passphrase(RIG_KEY)),
+                    key: Some(RIG_KEY.parse()?),
                     ..ClientOptions::default()
                 };
                 let client = Client::connect(endpoint, client_options).await?;
@@ -94,17 +122,7 @@ impl SimMotors {
             }
         };
         for axis in 0..axes as u8 {
-            let config = AxisConfig {
-                max_speed: mount.max_speed,
-                acceleration: mount.acceleration,
-                backlash: mount.compensation_steps,
-                backlash_mode: mount.compensation_mode.into(),
-                limits: SoftLimits {
-                    min: -1_000_000,
-                    max: 1_000_000,
-                },
-                ..motors.config(axis).await?
-            };
+            let config = rig_axis_config(mount, motors.config(axis).await?);
             motors.request(Command::SetConfig { axis, config }).await?;
         }
         Ok(motors)
