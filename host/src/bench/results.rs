@@ -1,6 +1,7 @@
 //! What a bench writes besides charts: `results.csv` (one row per run) and `summary.md`
-//! (per task, one row per policy: success rate, terminal error, evaluations, modelled
-//! wall-clock; the relay's milestones; sweep tables), and the statistics behind them.
+//! (per task, one row per policy: success rate with its 95 % interval, terminal error,
+//! evaluations, modelled wall-clock; the relay's milestones; sweep tables), and the
+//! statistics behind them.
 
 use std::fmt::Write as _;
 use std::path::Path;
@@ -105,6 +106,34 @@ pub fn median(values: &[f64]) -> Option<f64> {
     } else {
         0.5 * (sorted[n / 2 - 1] + sorted[n / 2])
     })
+}
+
+/// The standard normal quantile at 0.975: a two-sided 95 % interval.
+const Z_95: f64 = 1.959_963_984_540_054;
+
+/// The 95 % Wilson score interval of a success rate, `successes` of `runs`; `None` without
+/// runs. Unlike the normal approximation it stays within [0, 1] and is not empty at 0/n
+/// or n/n (10/10 gives 0.72 to 1: ten seeds cannot tell 100 % from 75 %).
+pub fn wilson_interval(successes: usize, runs: usize) -> Option<(f64, f64)> {
+    if runs == 0 {
+        return None;
+    }
+    let n = runs as f64;
+    let rate = successes.min(runs) as f64 / n;
+    let z2 = Z_95 * Z_95;
+    let shrink = 1.0 + z2 / n;
+    let centre = (rate + z2 / (2.0 * n)) / shrink;
+    let half = Z_95 / shrink * (rate * (1.0 - rate) / n + z2 / (4.0 * n * n)).sqrt();
+    Some(((centre - half).max(0.0), (centre + half).min(1.0)))
+}
+
+/// A success cell as every bench table shows it: `k/n (low–high)`, the 95 % Wilson
+/// interval to two decimals.
+pub fn success_cell(successes: usize, runs: usize) -> String {
+    match wilson_interval(successes, runs) {
+        Some((low, high)) => format!("{successes}/{runs} ({low:.2}–{high:.2})"),
+        None => format!("{successes}/{runs}"),
+    }
 }
 
 /// Indices of the points no other point beats on both coordinates (both minimised),
@@ -247,7 +276,7 @@ pub fn task_tables(
         let relay = task == TaskKind::Relay;
         let _ = writeln!(
             md,
-            "| policy | success | terminal error, mean ± std | best error, mean |{} median evaluations | modelled wall-clock, median (s) |",
+            "| policy | success (95 % interval) | terminal error, mean ± std | best error, mean |{} median evaluations | modelled wall-clock, median (s) |",
             if relay {
                 " dark at C8 at the end |"
             } else {
@@ -270,9 +299,8 @@ pub fn task_tables(
             };
             let _ = writeln!(
                 md,
-                "| {policy} | {}/{} | {terminal} | {} |{} {} | {:.0} |",
-                stats.successes,
-                stats.runs,
+                "| {policy} | {} | {terminal} | {} |{} {} | {:.0} |",
+                success_cell(stats.successes, stats.runs),
                 number(stats.best_mean),
                 if relay {
                     format!(" {}/{} |", stats.dark, stats.runs)
@@ -334,7 +362,7 @@ pub fn sweep_tables(
         for &task in tasks.iter().filter(|t| knob.applies_to(**t)) {
             let _ = writeln!(
                 md,
-                "## {task}: success rate and terminal error (mean) against {} ({})\n",
+                "## {task}: success rate (95 % interval) and terminal error (mean) against {} ({})\n",
                 knob.name(),
                 knob.label()
             );
@@ -347,9 +375,8 @@ pub fn sweep_tables(
                     .map(|&setting| {
                         let stats = PolicyStats::of(&select(records, task, policy, Some(setting)));
                         format!(
-                            "{}/{}, {}",
-                            stats.successes,
-                            stats.runs,
+                            "{}, {}",
+                            success_cell(stats.successes, stats.runs),
                             number(stats.terminal_mean)
                         )
                     })
@@ -457,6 +484,33 @@ mod tests {
         assert_eq!(median(&[5.0, 1.0, 3.0]), Some(3.0));
         assert_eq!(median(&[4.0, 1.0, 3.0, 10.0]), Some(3.5));
         assert_eq!(median(&[]), None);
+    }
+
+    #[test]
+    fn wilson_intervals_match_the_published_values() {
+        let close = |(low, high): (f64, f64), want: (f64, f64)| {
+            assert!(
+                (low - want.0).abs() < 5e-5 && (high - want.1).abs() < 5e-5,
+                "({low}, {high}) against {want:?}"
+            );
+        };
+        close(wilson_interval(10, 10).unwrap(), (0.7225, 1.0));
+        close(wilson_interval(0, 10).unwrap(), (0.0, 0.2775));
+        close(wilson_interval(5, 10).unwrap(), (0.2366, 0.7634));
+        close(wilson_interval(9, 10).unwrap(), (0.5958, 0.9821));
+        close(wilson_interval(30, 30).unwrap(), (0.8865, 1.0));
+        close(wilson_interval(97, 100).unwrap(), (0.9155, 0.9897));
+        assert_eq!(wilson_interval(0, 0), None);
+        let (low, high) = wilson_interval(100, 100).unwrap();
+        assert!(high <= 1.0 && (low - 0.9630).abs() < 5e-5, "{low}");
+    }
+
+    #[test]
+    fn success_cells_carry_their_interval() {
+        assert_eq!(success_cell(10, 10), "10/10 (0.72–1.00)");
+        assert_eq!(success_cell(0, 10), "0/10 (0.00–0.28)");
+        assert_eq!(success_cell(97, 100), "97/100 (0.92–0.99)");
+        assert_eq!(success_cell(0, 0), "0/0");
     }
 
     #[test]

@@ -8,6 +8,7 @@ use std::sync::Arc;
 
 use indicatif::ProgressBar;
 use optalign::bench::report::{THUMBNAIL_WIDTH, write_report};
+use optalign::bench::results::success_cell;
 use optalign::bench::{BenchPlan, Knob, MatrixOptions, SweepSpec, matrix, run_bench, run_matrix};
 use optalign::rig::MotorPath;
 use optalign::scenario::ScenarioFile;
@@ -71,6 +72,22 @@ fn a_bench_writes_results_summary_charts_and_transcripts() {
     assert!(summary.contains("## cavity (budget 6"), "{summary}");
     assert!(summary.contains("| random | "), "{summary}");
     assert!(summary.contains("Relay milestones"), "{summary}");
+    // Each task's row counts that task's successes and carries their 95 % interval.
+    for task in [TaskKind::Cavity, TaskKind::Relay] {
+        let successes = output
+            .records
+            .iter()
+            .filter(|r| r.summary.task == task && r.summary.success)
+            .count();
+        let section = summary
+            .split("\n## ")
+            .find(|s| s.starts_with(&format!("{task} (")))
+            .unwrap_or_else(|| panic!("no {task} section: {summary}"));
+        let row = format!("| random | {} | ", success_cell(successes, 2));
+        assert!(row.contains('–'), "{row}");
+        assert!(section.contains(&row), "{row} not in {section}");
+        assert!(output.tables.contains(&row), "the printed tables: {row}");
+    }
     assert!(
         summary.contains("(charts/speed_accuracy_cavity.png)"),
         "{summary}"
@@ -172,6 +189,20 @@ fn a_sweep_writes_one_group_per_value_and_its_chart() {
     );
     let summary = std::fs::read_to_string(out.path().join("summary.md")).unwrap();
     assert!(summary.contains("## cavity: success rate"), "{summary}");
+    let cell = |value: f64| {
+        let successes = output
+            .records
+            .iter()
+            .filter(|r| r.setting.unwrap().value == value && r.summary.success)
+            .count();
+        success_cell(successes, 1)
+    };
+    let row = format!("| random | {}, ", cell(0.0));
+    assert!(summary.contains(&row), "{row} not in {summary}");
+    assert!(
+        summary.contains(&format!(" | {}, ", cell(3.0))),
+        "{summary}"
+    );
     assert!(!summary.contains("## michelson"), "{summary}");
     assert_chart(&out.path().join("charts"), "sweep_artefact_brightness");
     let run = out

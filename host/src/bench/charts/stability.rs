@@ -1,6 +1,6 @@
 //! The stability map of one task: a heat map with a row per swept knob value and a column
 //! per policy; a cell's colour is the success rate (red 0 .. green 1), its text the
-//! successes, the runs and the mean terminal error. Harsh values (where the vision agent
+//! successes, the runs, their 95 % interval and the mean terminal error. Harsh values (where the vision agent
 //! must hold) are marked with an asterisk.
 
 use plotters::coord::Shift;
@@ -8,7 +8,7 @@ use plotters::prelude::*;
 use plotters::style::text_anchor::{HPos, Pos, VPos};
 
 use super::{Chart, DrawResult, error_unit};
-use crate::bench::results::{PolicyStats, select};
+use crate::bench::results::{PolicyStats, select, success_cell};
 use crate::bench::{RunRecord, Setting};
 use crate::task::TaskKind;
 
@@ -27,7 +27,7 @@ pub(crate) struct StabilityMap {
 }
 
 const LABEL_WIDTH: i32 = 290;
-const CELL_WIDTH: i32 = 170;
+const CELL_WIDTH: i32 = 200;
 const ROW_HEIGHT: i32 = 24;
 const TOP: i32 = 78;
 const MIN_WIDTH: i32 = 640;
@@ -113,7 +113,7 @@ impl Chart for StabilityMap {
             title,
         ))?;
         root.draw(&Text::new(
-            "* a harsh value, where the vision agent must hold 9/10",
+            "* a harsh value, where the vision agent must hold (at least 90 % of runs)",
             (10, 34),
             small.clone(),
         ))?;
@@ -156,9 +156,8 @@ impl Chart for StabilityMap {
                 ))?;
                 root.draw(&Text::new(
                     format!(
-                        "{}/{}  {}",
-                        cell.successes,
-                        cell.runs,
+                        "{}  {}",
+                        success_cell(cell.successes, cell.runs),
                         error_text(cell.error)
                     ),
                     (x + CELL_WIDTH / 2, y + ROW_HEIGHT / 2),
