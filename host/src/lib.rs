@@ -7,7 +7,7 @@ pub mod bounds;
 pub mod cli;
 pub mod console;
 pub mod flash;
-pub mod imaging;
+pub use optalign_imaging as imaging;
 pub mod lab;
 pub mod link;
 pub mod logging;

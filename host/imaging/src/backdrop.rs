@@ -110,8 +110,8 @@ fn without_offset(mut light: Vec<f32>, width: usize, height: usize) -> Vec<f32> 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::imaging::find_beams;
-    use crate::imaging::synthetic::Scene;
+    use crate::find_beams;
+    use crate::synthetic::Scene;
 
     /// A beam of radius 100 px at `beam` beside a stationary stray spot, its tails touching.
     fn frame(beam: [f64; 2], seed: u64) -> Frame {
@@ -127,7 +127,7 @@ mod tests {
     fn a_stray_spot_touching_the_beam_is_taken_off() {
         let later = frame([200.0, 230.0], 3);
         let merged = find_beams(&Picture::new(&later));
-        let off = |b: &crate::imaging::Beam| (b.centre[0] - 200.0).hypot(b.centre[1] - 230.0);
+        let off = |b: &crate::Beam| (b.centre[0] - 200.0).hypot(b.centre[1] - 230.0);
         assert!(
             merged.iter().all(|b| off(b) > 2.0),
             "the stray should pull the beam without a backdrop: {merged:?}"

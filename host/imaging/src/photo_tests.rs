@@ -72,7 +72,7 @@ const PHOTOS: [Photo; 6] = [
 
 fn beams_in(file: &str) -> Vec<Beam> {
     let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("../docs/scenarios/photos")
+        .join("../../docs/scenarios/photos")
         .join(file);
     let bytes = std::fs::read(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
     let frame = Frame::decode(&bytes, None).unwrap();

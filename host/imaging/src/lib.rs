@@ -16,8 +16,8 @@ mod noise;
 mod photo_tests;
 mod picture;
 mod register;
-#[cfg(test)]
-pub(crate) mod synthetic;
+#[cfg(any(test, feature = "synthetic"))]
+pub mod synthetic;
 #[cfg(test)]
 mod tests;
 

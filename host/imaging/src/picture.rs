@@ -188,7 +188,7 @@ impl Picture {
 
     /// This picture with its light replaced by `light` (what is left once stationary light
     /// is taken off), noise `noise`, scattering as `noise_map` says; saturated pixels stay.
-    pub(crate) fn with_light(&self, light: Vec<f32>, noise: f64, noise_map: NoiseMap) -> Self {
+    pub fn with_light(&self, light: Vec<f32>, noise: f64, noise_map: NoiseMap) -> Self {
         Self {
             light,
             noise,
@@ -810,7 +810,7 @@ fn repair_hot_pixels(light: &mut [f32], width: usize, height: usize, noise: f64)
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::imaging::synthetic::Scene;
+    use crate::synthetic::Scene;
 
     #[test]
     fn a_sloping_background_and_its_noise_are_measured() {
