@@ -6,7 +6,9 @@ use std::path::PathBuf;
 use std::sync::Arc;
 
 use indicatif::ProgressBar;
-use optalign::bench::{MatrixOptions, RunRecord, RunSpec, matrix, run_matrix, run_one};
+use optalign::bench::{
+    MatrixOptions, RunRecord, RunSpec, SavedFrames, matrix, run_matrix, run_one,
+};
 use pyo3::prelude::*;
 use serde_json::json;
 
@@ -84,7 +86,11 @@ pub fn run_json(
     let options = MatrixOptions {
         jobs: 1,
         motors: parse_motors(motors).map_err(invalid)?,
-        save_frames: out.is_some(),
+        saved_frames: if out.is_some() {
+            SavedFrames::All
+        } else {
+            SavedFrames::None
+        },
         ..MatrixOptions::default()
     };
     let runtime = runtime::single_threaded()?;

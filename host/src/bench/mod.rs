@@ -57,8 +57,8 @@ pub struct MatrixOptions {
     /// Worker threads.
     pub jobs: usize,
     pub motors: MotorPath,
-    /// Save every frame of every run next to its transcript.
-    pub save_frames: bool,
+    /// Which runs save every frame next to their transcript.
+    pub saved_frames: SavedFrames,
     /// Settings of the `vlm` policy, when the matrix has it.
     pub vlm: Option<VlmOptions>,
     /// The live monitor showing the matrix, when one is served.
@@ -72,10 +72,37 @@ impl Default for MatrixOptions {
         Self {
             jobs: default_jobs(),
             motors: MotorPath::InProcess,
-            save_frames: false,
+            saved_frames: SavedFrames::None,
             vlm: None,
             monitor: None,
             resume: false,
+        }
+    }
+}
+
+/// Which runs of a matrix keep their frames (a full-size frame is about 1 MB, so a
+/// baseline's run of 60 evaluations about 60 MB).
+#[derive(Clone, Debug, Default)]
+pub enum SavedFrames {
+    #[default]
+    None,
+    All,
+    /// The runs of these policies on these seeds.
+    Only {
+        policies: Vec<String>,
+        seeds: Vec<u64>,
+    },
+}
+
+impl SavedFrames {
+    /// Whether the run `spec` saves its frames.
+    pub fn keeps(&self, spec: &RunSpec) -> bool {
+        match self {
+            Self::None => false,
+            Self::All => true,
+            Self::Only { policies, seeds } => {
+                policies.contains(&spec.policy) && seeds.contains(&spec.seed)
+            }
         }
     }
 }
@@ -191,7 +218,7 @@ pub async fn run_one(spec: &RunSpec, options: &MatrixOptions) -> anyhow::Result<
     });
     let run_options = RunOptions {
         out_dir: spec.out_dir.clone(),
-        save_frames: options.save_frames,
+        save_frames: options.saved_frames.keeps(spec),
         seed: spec.seed,
         monitor,
         ..RunOptions::default()

@@ -36,6 +36,14 @@ pub fn write_thumbnail(frame_png: &Path, out: &Path, width: u32) -> anyhow::Resu
         .with_context(|| format!("cannot write {}", out.display()))
 }
 
+/// The id of a run's section in the report.
+fn anchor(summary: &RunSummary) -> String {
+    escape(&format!(
+        "{}-{}-seed{}",
+        summary.task, summary.policy, summary.seed
+    ))
+}
+
 /// One tile of a filmstrip.
 struct Tile {
     image: Option<String>,
@@ -159,7 +167,8 @@ pub fn write_report(
         let s = &record.summary;
         let _ = writeln!(
             html,
-            "<tr><td><a href=\"#{task}\">{task}</a></td><td>{}</td><td>{}</td><td class=\"{}\">{}</td><td>{}</td><td>{}/{}</td><td>{:.0}</td><td>{}</td></tr>",
+            "<tr><td><a href=\"#{}\">{task}</a></td><td>{}</td><td>{}</td><td class=\"{}\">{}</td><td>{}</td><td>{}/{}</td><td>{:.0}</td><td>{}</td></tr>",
+            anchor(s),
             escape(&s.policy),
             s.seed,
             if s.success { "ok" } else { "no" },
@@ -190,11 +199,18 @@ pub fn write_report(
         let Some(dir) = &record.out_dir else { continue };
         let s = &record.summary;
         write_run_chart(dir, s)?;
-        let tiles = filmstrip(dir, s)?;
+        let mut tiles = filmstrip(dir, s)?;
+        // A run that kept no frames shows its error curve alone, not a strip of captions.
+        if tiles.iter().all(|t| t.image.is_none()) {
+            tiles.clear();
+        }
         let base = relative(root, dir);
         let _ = writeln!(
             html,
-            "<section id=\"{task}\"><h2>{task}: {} after {} evaluations</h2>\n<p><a href=\"{base}/transcript.jsonl\">transcript</a> · <a href=\"{base}/summary.json\">summary</a>{}</p>\n<img src=\"{base}/error.svg\" alt=\"error curve\" width=\"720\">\n<div class=\"strip\">",
+            "<section id=\"{}\"><h2>{task}, {}, seed {}: {} after {} evaluations</h2>\n<p><a href=\"{base}/transcript.jsonl\">transcript</a> · <a href=\"{base}/summary.json\">summary</a>{}</p>\n<img src=\"{base}/error.svg\" alt=\"error curve\" width=\"720\">\n<div class=\"strip\">",
+            anchor(s),
+            escape(&s.policy),
+            s.seed,
             if s.success { "aligned" } else { "not aligned" },
             s.evaluations_used,
             s.failure

@@ -11,7 +11,9 @@ use indicatif::{ProgressBar, ProgressStyle};
 
 use super::monitor::MonitorArgs;
 use super::run::VlmArgs;
-use crate::bench::{BenchPlan, MatrixOptions, SweepSpec, default_jobs, parse_seeds, run_bench};
+use crate::bench::{
+    BenchPlan, MatrixOptions, SavedFrames, SweepSpec, default_jobs, parse_seeds, run_bench,
+};
 use crate::monitor::Hub;
 use crate::policy::policy_names;
 use crate::policy::vlm::{self, CostEstimate, VlmOptions};
@@ -19,7 +21,7 @@ use crate::rig::MotorPath;
 use crate::scenario::ScenarioFile;
 use crate::task::TaskKind;
 
-/// The policies a bench compares when none are named.
+/// The policies a bench (and the demo) compares when none are named.
 const DEFAULT_POLICIES: [&str; 3] = ["random", "bo", "vision"];
 
 #[derive(Debug, Args)]
@@ -70,10 +72,11 @@ pub struct BenchArgs {
     vlm: VlmArgs,
 }
 
+/// Seeds as `--seeds` names them.
 #[derive(Clone, Debug)]
-struct SeedList(Vec<u64>);
+pub(super) struct SeedList(pub(super) Vec<u64>);
 
-fn parse_seed_list(text: &str) -> Result<SeedList, String> {
+pub(super) fn parse_seed_list(text: &str) -> Result<SeedList, String> {
     parse_seeds(text).map(SeedList)
 }
 
@@ -86,7 +89,7 @@ fn parse_jobs(text: &str) -> Result<usize, String> {
 }
 
 /// The policies to run: the named ones (each must exist), or the defaults that exist.
-fn resolve_policies(named: &[String]) -> anyhow::Result<Vec<String>> {
+pub(super) fn resolve_policies(named: &[String]) -> anyhow::Result<Vec<String>> {
     let available = policy_names();
     if named.is_empty() {
         let (present, missing): (Vec<&str>, Vec<&str>) =
@@ -188,7 +191,11 @@ pub async fn run(args: BenchArgs) -> anyhow::Result<()> {
         options: MatrixOptions {
             jobs: args.jobs.unwrap_or_else(default_jobs),
             motors: args.motors,
-            save_frames: args.frames,
+            saved_frames: if args.frames {
+                SavedFrames::All
+            } else {
+                SavedFrames::None
+            },
             vlm: vlm.clone(),
             monitor: hub,
             resume: args.resume,

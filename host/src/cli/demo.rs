@@ -1,29 +1,38 @@
-//! `optalign demo`: the three tasks with one policy (our vision agent by default) on
-//! simulated rigs driven through the simulated firmware peer over loopback TCP, the full
-//! protocol path. Prints a short table and writes charts and an HTML report with each
-//! run's filmstrip. No hardware, no API key.
+//! `optalign demo`: our vision agent against the classical baselines on the three tasks, a
+//! few seeds each, on simulated rigs driven through the simulated firmware peer over
+//! loopback TCP (the full protocol path). A small bench: it prints each task's table, and
+//! writes the speed-against-accuracy and convergence charts and an HTML report with every
+//! run's error curve, and the filmstrips of the first seed's runs of the policies asked for.
+//! No hardware, no API key.
 
 use std::path::PathBuf;
 use std::sync::Arc;
 
 use clap::Args;
-use indicatif::ProgressBar;
+use indicatif::{ProgressBar, ProgressStyle};
 
-use crate::bench::charts::{error_unit, write_bench_charts};
+use super::bench::{SeedList, parse_seed_list, resolve_policies};
 use crate::bench::report::write_report;
-use crate::bench::{MatrixOptions, default_jobs, matrix, run_matrix};
+use crate::bench::{BenchPlan, MatrixOptions, SavedFrames, default_jobs, run_bench};
 use crate::rig::MotorPath;
 use crate::scenario::ScenarioFile;
 use crate::task::TaskKind;
 
 #[derive(Debug, Args)]
 pub struct DemoArgs {
-    /// Who aligns.
-    #[arg(long, default_value = "vision")]
-    policy: String,
-    /// Seed number: selects the hidden initial misalignments.
-    #[arg(long, default_value_t = 0)]
-    seed: u64,
+    /// Policies compared, comma-separated [default: random,bo,vision]; `vlm` needs a
+    /// model: run it with `optalign bench --policies vlm --model ...`.
+    #[arg(long, value_delimiter = ',')]
+    policies: Vec<String>,
+    /// Seeds (the hidden initial misalignments): a range 0..3 (half-open), a list 0,4,7,
+    /// or one number.
+    #[arg(long, default_value = "0..3", value_parser = parse_seed_list)]
+    seeds: SeedList,
+    /// Policies whose runs on the first seed keep their frames and show them as a
+    /// filmstrip in the report, comma-separated (a frame is about 1 MB: a baseline's run
+    /// of 60 evaluations keeps 60 MB).
+    #[arg(long, value_delimiter = ',', default_value = "vision")]
+    filmstrips: Vec<String>,
     /// Scenario file (TOML); defaults apply when omitted.
     #[arg(long, value_name = "FILE")]
     scenario: Option<PathBuf>,
@@ -36,92 +45,91 @@ pub struct DemoArgs {
 }
 
 pub async fn run(args: DemoArgs) -> anyhow::Result<()> {
-    let scenario = Arc::new(ScenarioFile::load_or_default(args.scenario.as_deref())?);
-    let policies = vec![args.policy.clone()];
-    let specs = matrix(
-        &TaskKind::ALL,
-        &policies,
-        &[args.seed],
-        &scenario,
-        None,
-        Some(&args.out),
+    let scenario = ScenarioFile::load_or_default(args.scenario.as_deref())?;
+    let policies = resolve_policies(&args.policies)?;
+    anyhow::ensure!(
+        !policies.iter().any(|p| p == "vlm"),
+        "the demo runs without an API key: compare the vlm policy with \
+         `optalign bench --policies vlm,vision --model NAME` instead"
     );
-    let options = MatrixOptions {
-        jobs: default_jobs().min(specs.len()),
-        motors: args.motors,
-        save_frames: true,
-        vlm: None,
-        monitor: None,
-        resume: false,
+    let seeds = args.seeds.0;
+    for policy in &args.filmstrips {
+        anyhow::ensure!(
+            policies.contains(policy),
+            "--filmstrips names {policy:?}, which the demo does not run (policies: {})",
+            policies.join(", ")
+        );
+    }
+    let saved_frames = SavedFrames::Only {
+        policies: args.filmstrips,
+        seeds: seeds.first().copied().into_iter().collect(),
     };
+    let runs = TaskKind::ALL.len() * policies.len() * seeds.len();
     eprintln!(
-        "demo: {} on the three tasks, seed {}, motors over {}",
-        args.policy,
-        args.seed,
+        "demo: {} on the three tasks, {} seed(s) each ({runs} runs), motors over {}",
+        policies.join(", "),
+        seeds.len(),
         match args.motors {
             MotorPath::Peer => "the simulated firmware peer (loopback TCP)",
             MotorPath::InProcess => "the in-process firmware core",
         }
     );
-    let out = args.out.clone();
-    let policy = args.policy.clone();
-    let (records, report, charts) = tokio::task::spawn_blocking(move || {
-        let records = run_matrix(&specs, &options, &ProgressBar::hidden())?;
-        let charts = write_bench_charts(
-            &out.join("charts"),
-            &records,
-            &TaskKind::ALL,
-            &policies,
-            &scenario,
-        )?;
+    let plan = BenchPlan {
+        tasks: TaskKind::ALL.to_vec(),
+        policies,
+        seeds,
+        scenario: Arc::new(scenario),
+        scenario_label: args
+            .scenario
+            .as_ref()
+            .map_or_else(|| "defaults".to_owned(), |p| p.display().to_string()),
+        out: args.out.clone(),
+        options: MatrixOptions {
+            jobs: default_jobs().min(runs),
+            motors: args.motors,
+            saved_frames,
+            vlm: None,
+            monitor: None,
+            resume: false,
+        },
+        sweeps: Vec::new(),
+    };
+    let progress = ProgressBar::new(0).with_style(
+        ProgressStyle::with_template("{bar:40.cyan/blue} {pos}/{len} runs  {elapsed_precise}")?
+            .progress_chars("=> "),
+    );
+    let (output, report) = tokio::task::spawn_blocking(move || {
+        let output = run_bench(&plan, &progress)?;
         let intro = format!(
-            "{policy} on the three simulated tasks, seed {}: the rigs run the firmware core \
+            "{} on the three simulated tasks, seeds {:?}: the rigs run the firmware core \
              behind the simulated peer, and every image, action and score is in each run's \
-             transcript.",
-            args.seed
+             transcript. The charts set each policy's accuracy against the evaluations it \
+             spent.",
+            plan.policies.join(", "),
+            plan.seeds
         );
-        // Each run's own error curve is in its section; of the matrix charts only the
-        // relay milestones add to a one-seed report.
-        let milestones: Vec<PathBuf> = charts
-            .iter()
-            .filter(|c| c.file_stem().is_some_and(|s| s == "relay_milestones"))
-            .cloned()
-            .collect();
         let report = write_report(
-            &out,
-            &format!("optalign demo: {policy}"),
+            &plan.out,
+            "optalign demo: the vision agent and the baselines",
             &intro,
-            &records,
-            &milestones,
+            &output.records,
+            &output.charts,
         )?;
-        anyhow::Ok((records, report, charts))
+        anyhow::Ok((output, report))
     })
     .await??;
-    crate::say!("task       success  terminal error               evaluations");
-    for record in &records {
-        let s = &record.summary;
-        let error = s.terminal_error.map_or_else(
-            || "none (no light at C8)".to_owned(),
-            |e| format!("{e:.1} {}", error_unit(s.task)),
-        );
-        crate::say!(
-            "{:<10} {:<8} {:<28} {}/{}{}",
-            s.task.name(),
-            if s.success { "yes" } else { "no" },
-            error,
-            s.evaluations_used,
-            s.budget,
-            s.failure
-                .as_deref()
-                .map(|f| format!("  (ended early: {f})"))
-                .unwrap_or_default()
-        );
-    }
-    crate::say!("\noutput: {}", args.out.display());
-    crate::say!("report: {}", report.display());
+    crate::say!("{}", output.tables.trim_end());
     crate::say!(
-        "charts: {} files in {}",
-        charts.len(),
+        "\n{} runs in {:.1} s",
+        output.records.len(),
+        output.wall_time_s
+    );
+    crate::say!("output:  {}", args.out.display());
+    crate::say!("report:  {}", report.display());
+    crate::say!("summary: {}", output.summary.display());
+    crate::say!(
+        "charts:  {} files in {}",
+        output.charts.len(),
         args.out.join("charts").display()
     );
     Ok(())

@@ -102,7 +102,7 @@ impl Transcript {
         budget: usize,
         observer: Option<RunMonitor>,
     ) -> anyhow::Result<Self> {
-        std::fs::create_dir_all(dir.join("frames"))
+        std::fs::create_dir_all(dir)
             .with_context(|| format!("cannot create run folder {}", dir.display()))?;
         let path = dir.join("transcript.jsonl");
         let file =
@@ -213,9 +213,12 @@ impl Transcript {
             .with_context(|| format!("cannot write {}", path.display()))
     }
 
-    /// Saves a frame as `frames/NNNN.png`; returns its path.
+    /// Saves a frame as `frames/NNNN.png` (the folder made with the first); returns its path.
     pub fn save_frame(&mut self, evaluation: usize, frame: &Frame) -> anyhow::Result<PathBuf> {
-        let path = self.dir.join("frames").join(format!("{evaluation:04}.png"));
+        let frames = self.dir.join("frames");
+        std::fs::create_dir_all(&frames)
+            .with_context(|| format!("cannot create {}", frames.display()))?;
+        let path = frames.join(format!("{evaluation:04}.png"));
         let png = frame.encode_png()?;
         std::fs::write(&path, png).with_context(|| format!("cannot write {}", path.display()))?;
         Ok(path)

@@ -9,7 +9,9 @@ use std::sync::Arc;
 use indicatif::ProgressBar;
 use optalign::bench::report::{THUMBNAIL_WIDTH, write_report};
 use optalign::bench::results::success_cell;
-use optalign::bench::{BenchPlan, Knob, MatrixOptions, SweepSpec, matrix, run_bench, run_matrix};
+use optalign::bench::{
+    BenchPlan, Knob, MatrixOptions, SavedFrames, SweepSpec, matrix, run_bench, run_matrix,
+};
 use optalign::rig::MotorPath;
 use optalign::scenario::ScenarioFile;
 use optalign::task::TaskKind;
@@ -33,7 +35,7 @@ fn plan(out: &Path, tasks: Vec<TaskKind>, seeds: Vec<u64>, sweeps: Vec<SweepSpec
         options: MatrixOptions {
             jobs: 2,
             motors: MotorPath::InProcess,
-            save_frames: false,
+            saved_frames: SavedFrames::None,
             ..MatrixOptions::default()
         },
         sweeps,
@@ -301,7 +303,7 @@ fn the_report_shows_every_frame_with_its_action() {
     let options = MatrixOptions {
         jobs: 1,
         motors: MotorPath::Peer,
-        save_frames: true,
+        saved_frames: SavedFrames::All,
         ..MatrixOptions::default()
     };
     let records = run_matrix(&specs, &options, &ProgressBar::hidden()).unwrap();

@@ -9,6 +9,7 @@ mod baselines_runs;
 mod beams_cli;
 mod bench_outputs;
 mod cameras_cli;
+mod demo_cli;
 mod devtools;
 mod fault_proxy;
 mod faulty_link;
