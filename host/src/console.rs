@@ -58,6 +58,20 @@ pub fn colours_on_stderr() -> bool {
     !no_colour && std::io::stderr().is_terminal()
 }
 
+/// Joins an error and its causes into one line, skipping causes already quoted, with
+/// control characters from outside text escaped.
+pub fn one_line(error: &anyhow::Error) -> String {
+    let mut line = error.to_string();
+    for cause in error.chain().skip(1) {
+        let cause = cause.to_string();
+        if !line.contains(&cause) {
+            line.push_str(": ");
+            line.push_str(&cause);
+        }
+    }
+    escape_controls(&line).into_owned()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -19,7 +19,7 @@ fn main() -> ExitCode {
     match runtime.block_on(cli.run()) {
         Ok(()) => ExitCode::SUCCESS,
         Err(error) => {
-            eprintln!("error: {}", optalign::cli::one_line(&error));
+            eprintln!("error: {}", optalign::console::one_line(&error));
             ExitCode::FAILURE
         }
     }

@@ -207,7 +207,7 @@ pub async fn run_one(spec: &RunSpec, options: &MatrixOptions) -> anyhow::Result<
     let mut rig = SimRig::new(spec.task, scenario, spec.seed, options.motors).await?;
     if let Some(dir) = &spec.out_dir {
         // The run can be repeated alone: `optalign run --scenario DIR/scenario.toml`.
-        crate::cli::record_scenario(dir, scenario)?;
+        crate::run::record_scenario(dir, scenario)?;
     }
     let monitor = options.monitor.as_ref().map(|hub| {
         let setting = spec.setting.map(|s| format!(" at {s}")).unwrap_or_default();

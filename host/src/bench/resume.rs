@@ -7,7 +7,7 @@
 use std::path::Path;
 
 use super::RunSpec;
-use crate::cli::SCENARIO_FILE;
+use crate::run::SCENARIO_FILE;
 use crate::run::{RunSummary, SUMMARY_FILE};
 
 /// The summary of `spec`'s run finished in `dir` by an earlier bench, when there is one.

@@ -418,7 +418,8 @@ impl Knob {
             Self::Hysteresis => s.mount.hysteresis_steps = whole("the hysteresis")?,
             Self::FringeDrift => s.michelson.fringe_drift_rad = value,
         }
-        s.validate().map_err(|e| fail(crate::cli::one_line(&e)))?;
+        s.validate()
+            .map_err(|e| fail(crate::console::one_line(&e)))?;
         Ok(s)
     }
 }

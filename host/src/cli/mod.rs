@@ -21,8 +21,6 @@ mod rezero;
 mod run;
 mod status;
 
-pub use run::{SCENARIO_FILE, record_scenario};
-
 use clap::{Parser, Subcommand};
 
 /// Aligns free-space optics from camera images: motor controllers, simulations, policies.
@@ -112,18 +110,4 @@ impl Cli {
             Commands::FakeLlm(args) => crate::policy::vlm::fake::run_cli(args).await,
         }
     }
-}
-
-/// Joins an error and its causes into one line, skipping causes already quoted, with
-/// control characters from outside text escaped.
-pub fn one_line(error: &anyhow::Error) -> String {
-    let mut line = error.to_string();
-    for cause in error.chain().skip(1) {
-        let cause = cause.to_string();
-        if !line.contains(&cause) {
-            line.push_str(": ");
-            line.push_str(&cause);
-        }
-    }
-    crate::console::escape_controls(&line).into_owned()
 }

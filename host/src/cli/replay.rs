@@ -10,12 +10,12 @@ use anyhow::Context;
 use clap::Args;
 use serde_json::Value;
 
-use super::run::{SCENARIO_FILE, record_scenario};
 use crate::policy::TaskBrief;
 use crate::policy::vlm::replay::{ReplayBackend, recorded_completions, recorded_options};
 use crate::policy::vlm::{VlmOptions, VlmPolicy};
 use crate::rig::{MotorPath, SimRig};
 use crate::run::{RunOptions, RunSummary, StepRecord, run_episode};
+use crate::run::{SCENARIO_FILE, record_scenario};
 use crate::scenario::ScenarioFile;
 use crate::task::TaskKind;
 

@@ -4,7 +4,6 @@
 use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 
-use anyhow::Context;
 use clap::Args;
 
 use super::monitor::MonitorArgs;
@@ -14,12 +13,11 @@ use crate::monitor::Hub;
 use crate::policy::vlm::{self, ReasoningEffort, VlmOptions};
 use crate::policy::{PolicyOptions, TaskBrief, build_policy};
 use crate::rig::{MotorPath, Rig, SimRig};
-use crate::run::{RunOptions, run_dir, run_episode};
+use crate::run::{RunOptions, record_scenario, run_dir, run_episode};
 use crate::scenario::ScenarioFile;
 use crate::task::TaskKind;
 
 /// The file in a run folder that records the scenario the run used (read by `replay`).
-pub const SCENARIO_FILE: &str = "scenario.toml";
 
 #[derive(Debug, Args)]
 pub struct RunArgs {
@@ -119,15 +117,6 @@ impl VlmArgs {
             ..VlmOptions::default()
         })
     }
-}
-
-/// Records the scenario a run used in its folder.
-pub fn record_scenario(dir: &Path, scenario: &ScenarioFile) -> anyhow::Result<()> {
-    std::fs::create_dir_all(dir)
-        .with_context(|| format!("cannot create run folder {}", dir.display()))?;
-    let path = dir.join(SCENARIO_FILE);
-    let text = toml::to_string(scenario).context("cannot write the scenario as TOML")?;
-    std::fs::write(&path, text).with_context(|| format!("cannot write {}", path.display()))
 }
 
 /// Refuses to run a bench whose controllers lost positions, saying how to find them.

@@ -12,9 +12,12 @@ use std::time::Instant;
 pub use summary::{EndedBy, Failure, RunSummary, is_success, summarize};
 pub use transcript::{SUMMARY_FILE, StepRecord, Transcript};
 
+use anyhow::Context;
+
 use crate::monitor::RunMonitor;
 use crate::policy::{Feedback, Observation, Policy, PrivilegedObjective};
 use crate::rig::{Rig, Score};
+use crate::scenario::ScenarioFile;
 use crate::task::relay::RelayState;
 use crate::task::{Action, TaskKind, TaskLimits};
 
@@ -440,6 +443,18 @@ fn save_frame(
         }
         _ => Ok(None),
     }
+}
+
+/// The file in a run folder that holds the scenario the run used.
+pub const SCENARIO_FILE: &str = "scenario.toml";
+
+/// Records the scenario a run used in its folder, so it can be repeated alone.
+pub fn record_scenario(dir: &Path, scenario: &ScenarioFile) -> anyhow::Result<()> {
+    std::fs::create_dir_all(dir)
+        .with_context(|| format!("cannot create run folder {}", dir.display()))?;
+    let path = dir.join(SCENARIO_FILE);
+    let text = toml::to_string(scenario).context("cannot write the scenario as TOML")?;
+    std::fs::write(&path, text).with_context(|| format!("cannot write {}", path.display()))
 }
 
 /// The conventional output folder for a run: `DIR/<task>-<policy>-seed<N>`.

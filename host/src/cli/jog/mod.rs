@@ -179,7 +179,7 @@ impl Jog {
                 report = &mut motion => {
                     let outcome = match report {
                         Ok(report) => format!("{:?}", report.outcome).to_lowercase(),
-                        Err(error) => format!("refused: {}", crate::cli::one_line(&error.into())),
+                        Err(error) => format!("refused: {}", crate::console::one_line(&error.into())),
                     };
                     return Ok((outcome, quit));
                 }
