@@ -331,6 +331,14 @@ impl<S: Storage> Controller<S> {
                 }
                 continue;
             }
+            if let Some(due) = mv.take_due_run(now) {
+                if let Some(axis) = self.axes.get_mut(usize::from(due.axis)) {
+                    let (direction, coil_steps) = axis.steps(due.travel, due.steps);
+                    driver.steps(due.axis, direction, due.steps, coil_steps);
+                    axis.last_step_us = due.last_at_us;
+                }
+                continue;
+            }
             if let Some(step) = mv.take_step(now) {
                 if let Some(axis) = self.axes.get_mut(usize::from(step.axis)) {
                     let (direction, coil_steps) = axis.step(step.travel);

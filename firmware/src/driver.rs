@@ -17,6 +17,23 @@ pub enum StepDirection {
 pub trait StepDriver {
     /// Makes one step.
     fn step(&mut self, axis: u8, direction: StepDirection, motor_steps: i32);
+    /// Makes `count` steps in `direction`, the last leaving the counter at `motor_steps`:
+    /// a run of one axis that was all due at once. One [`Self::step`] after another unless
+    /// a driver can do better (a simulation).
+    fn steps(&mut self, axis: u8, direction: StepDirection, count: u32, motor_steps: i32) {
+        let delta = match direction {
+            StepDirection::Forward => 1i32,
+            StepDirection::Backward => -1,
+        };
+        for left in (0..count).rev() {
+            // Modular like the counter itself: `left as i32` wraps as the counter does.
+            self.step(
+                axis,
+                direction,
+                motor_steps.wrapping_sub(delta.wrapping_mul(left as i32)),
+            );
+        }
+    }
     /// Energises (`on`: the coil pattern of `motor_steps`) or releases the axis's coils.
     fn set_power(&mut self, axis: u8, on: bool, motor_steps: i32);
 }
@@ -36,6 +53,35 @@ pub fn half_step_coils(motor_steps: i32) -> u8 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Records every step it is given.
+    #[derive(Default)]
+    struct Log(Vec<(u8, StepDirection, i32)>);
+
+    impl StepDriver for Log {
+        fn step(&mut self, axis: u8, direction: StepDirection, motor_steps: i32) {
+            self.0.push((axis, direction, motor_steps));
+        }
+        fn set_power(&mut self, _: u8, _: bool, _: i32) {}
+    }
+
+    #[test]
+    fn a_run_at_once_is_the_same_steps_one_by_one() {
+        for (direction, delta) in [(StepDirection::Forward, 1), (StepDirection::Backward, -1)] {
+            for last in [0, 5, i32::MAX, i32::MIN + 1] {
+                let mut whole = Log::default();
+                whole.steps(2, direction, 4, last);
+                let one_by_one: Vec<_> = (0..4)
+                    .rev()
+                    .map(|left: i32| (2, direction, last.wrapping_sub(delta * left)))
+                    .collect();
+                assert_eq!(whole.0, one_by_one);
+                let mut none = Log::default();
+                none.steps(2, direction, 0, last);
+                assert!(none.0.is_empty());
+            }
+        }
+    }
 
     #[test]
     fn neighbouring_phases_differ_in_one_coil() {

@@ -4,7 +4,9 @@
 //! every axis runs in the last phase, so all axes of a move finish together, and the
 //! OneSided overshoot legs run in the phase before. Every phase has one [`Shape`] shared by
 //! its axes. Step times are absolute microseconds fixed at planning, so a late `poll`
-//! makes the same steps in the same order as a punctual one.
+//! makes the same steps on each axis, in the same order, as a punctual one. A run whose
+//! every remaining step is due (a simulation that jumps to the end of a move, a very late
+//! poll) is taken whole ([`Move::take_due_run`]), without timing its steps one by one.
 
 use heapless::Vec;
 use optalign_protocol::{AxisValue, MAX_AXES, MoveOutcome, RequestId};
@@ -28,6 +30,16 @@ pub struct Step {
     pub axis: u8,
     pub travel: Travel,
     pub at_us: u64,
+}
+
+/// Every step a run had left, taken at once because all of them were due.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct DueRun {
+    pub axis: u8,
+    pub travel: Travel,
+    pub steps: u32,
+    /// When its last step fell due.
+    pub last_at_us: u64,
 }
 
 /// One axis's steps within a phase.
@@ -63,6 +75,20 @@ impl Run {
 
     fn end_us(&self) -> u64 {
         self.origin_us.saturating_add(self.ramp.duration_us())
+    }
+
+    /// When the run's last step falls due: no step of a ramp comes after its last one
+    /// (every profile ends at its latest time), and [`Self::advance`] never moves a step
+    /// before the one it follows.
+    fn last_step_us(&self) -> u64 {
+        let last = self.ramp.time_of(self.ramp.steps());
+        self.next_us.max(self.origin_us.saturating_add(last))
+    }
+
+    /// Marks every remaining step made.
+    fn finish(&mut self) {
+        self.next_us = self.last_step_us();
+        self.done = self.ramp.steps();
     }
 
     fn advance(&mut self) {
@@ -239,6 +265,31 @@ impl Move {
         self.remaining_runs()
             .map(Run::end_us)
             .fold(self.last_us, u64::max)
+    }
+
+    /// Takes every step left of the current phase's first run whose last step is due at
+    /// or before `now_us`: the steps [`Self::take_step`] would give for that axis one by
+    /// one, in the same order, without timing each.
+    pub fn take_due_run(&mut self, now_us: u64) -> Option<DueRun> {
+        loop {
+            let runs = self.phases.get_mut(self.phase)?;
+            if runs.iter().all(Run::is_done) {
+                self.phase += 1;
+                continue;
+            }
+            let run = runs
+                .iter_mut()
+                .find(|r| !r.is_done() && r.last_step_us() <= now_us)?;
+            let due = DueRun {
+                axis: run.axis,
+                travel: run.travel,
+                steps: run.remaining(),
+                last_at_us: run.last_step_us(),
+            };
+            run.finish();
+            self.last_us = self.last_us.max(due.last_at_us);
+            return Some(due);
+        }
     }
 
     /// Takes the earliest step due at or before `now_us` (ties in axis order).

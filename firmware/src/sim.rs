@@ -306,6 +306,22 @@ impl StepDriver for SimDriver {
         }
     }
 
+    fn steps(&mut self, axis: u8, direction: StepDirection, count: u32, motor_steps: i32) {
+        let index = usize::from(axis);
+        if let Some(counter) = self.coil_steps.get_mut(index) {
+            *counter = motor_steps;
+        }
+        if !self.is_powered(axis) {
+            self.unpowered_steps += u64::from(count);
+            return;
+        }
+        if let Some(mount) = self.mounts.get_mut(index) {
+            for _ in 0..count {
+                mount.apply_step(direction);
+            }
+        }
+    }
+
     fn set_power(&mut self, axis: u8, on: bool, motor_steps: i32) {
         let index = usize::from(axis);
         if let Some(powered) = self.powered.get_mut(index) {
@@ -322,6 +338,48 @@ mod tests {
     use super::*;
 
     use StepDirection::{Backward, Forward};
+
+    #[test]
+    fn a_run_at_once_moves_the_mounts_as_its_steps_one_by_one() {
+        let mounts = || {
+            [
+                MountModel::new(7)
+                    .with_seed(3)
+                    .with_lost_steps(0.05)
+                    .with_stall_region(-40, -10, 0.3),
+                MountModel::new(0).with_seed(9).with_lost_steps(0.01),
+            ]
+        };
+        let (mut whole, mut stepped) = (SimDriver::new(mounts()), SimDriver::new(mounts()));
+        for driver in [&mut whole, &mut stepped] {
+            driver.set_power(0, true, 0);
+        }
+        // Axis 0 powered; axis 1 not, so its steps are only counted.
+        let runs = [
+            (0, Backward, 60),
+            (1, Forward, 25),
+            (0, Forward, 90),
+            (0, Backward, 5),
+        ];
+        let mut counters = [0i32; 2];
+        for (axis, direction, count) in runs {
+            let delta = if direction == Forward { 1 } else { -1 };
+            let first = counters[usize::from(axis)];
+            let last = first + delta * count;
+            whole.steps(axis, direction, count as u32, last);
+            for step in 1..=count {
+                stepped.step(axis, direction, first + delta * step);
+            }
+            counters[usize::from(axis)] = last;
+        }
+        for axis in 0..2 {
+            assert_eq!(whole.mount(axis), stepped.mount(axis));
+            assert_eq!(whole.coil_steps(axis), stepped.coil_steps(axis));
+        }
+        assert_eq!(whole.unpowered_steps(), 25);
+        assert_eq!(whole.unpowered_steps(), stepped.unpowered_steps());
+        assert!(whole.mount(0).is_some_and(|m| m.lost_steps() > 0));
+    }
 
     #[test]
     fn dead_band_then_load() {

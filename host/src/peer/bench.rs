@@ -274,6 +274,12 @@ impl StepDriver for MountsPort<'_> {
         lock(self.0).mounts.step(axis, direction, motor_steps);
     }
 
+    fn steps(&mut self, axis: u8, direction: StepDirection, count: u32, motor_steps: i32) {
+        lock(self.0)
+            .mounts
+            .steps(axis, direction, count, motor_steps);
+    }
+
     fn set_power(&mut self, axis: u8, on: bool, motor_steps: i32) {
         lock(self.0).mounts.set_power(axis, on, motor_steps);
     }
