@@ -19,19 +19,7 @@ const LEVEL_REACH: usize = 1;
 /// The standard normal density and cumulative distribution at `t`.
 fn normal(t: f64) -> (f64, f64) {
     let density = (-0.5 * t * t).exp() / (2.0 * std::f64::consts::PI).sqrt();
-    // The complementary error function's Abramowitz-Stegun 7.1.26 fit (error < 1.5e-7).
-    let x = t.abs() / std::f64::consts::SQRT_2;
-    let k = 1.0 / (1.0 + 0.3275911 * x);
-    let erfc = k
-        * (0.254829592
-            + k * (-0.284496736 + k * (1.421413741 + k * (-1.453152027 + k * 1.061405429))))
-        * (-x * x).exp();
-    let cdf = if t >= 0.0 {
-        1.0 - 0.5 * erfc
-    } else {
-        0.5 * erfc
-    };
-    (density, cdf)
+    (density, optalign_optics::normal_cdf(t))
 }
 
 /// The mean of `max(0, t + Z)` for a standard normal `Z`: `t Φ(t) + φ(t)`, what a pixel

@@ -19,6 +19,7 @@ use optalign_optics::Frame;
 use super::model::{SAME_STEP, Sighting, Tracker, Vec2, distance};
 use super::see::{Seen, View, alike, motion_in, stationary_pairs};
 use super::sight::{Scales, sight};
+use super::tuning::CAVITY_TOLERANCE_RADII;
 use crate::imaging::{
     Beam, Changes, core_centre, core_radius, nearest, registered_changes_sized, scene_shift,
 };
@@ -63,10 +64,6 @@ const HIDDEN_RADII: f64 = 1.2;
 
 /// The check point sits this many secondary radii outside the hidden zone.
 const CHECK_CLEARANCE_RADII: f64 = 1.5;
-
-/// A check sighting within this many secondary radii of the prediction confirms the map
-/// (or within the position noise, when that is larger).
-const CONFIRM_RADII: f64 = 0.4;
 
 /// The primary's centre is the centroid of its light above this share of its peak, and
 /// its core the light above it ...
@@ -155,7 +152,9 @@ impl CavityAgent {
             .command_for(target, self.command)
             .unwrap_or(self.command);
         let settled = self.checks >= MAX_CHECKS && self.last_check_seen;
-        if confirmed || remaining <= 2 || settled {
+        let tolerance = CAVITY_TOLERANCE_RADII * self.scales.radius(SECONDARY);
+        let sure = confirmed && self.tracker.sure_at(aim, tolerance);
+        if sure || remaining <= 2 || settled {
             return self.send(aim, Step::Check(None), true);
         }
         if matches!(self.last, Step::Check(_)) && !self.last_check_seen {
@@ -366,6 +365,11 @@ impl CavityAgent {
             .map(|s| judge(&s, view))
             .or_else(|| self.under_core(&changes, primary));
         let seen_from = vanished.map(|s| judge(&s, &before));
+        // A check is judged before it joins the model: does the model believe it?
+        let believed = match seen_to {
+            Some(Sighting::Clean(centre)) => self.tracker.believes(self.command, centre),
+            _ => false,
+        };
         let untried = !self.tracker.tried_within(self.before, SAME_STEP);
         self.tracker.file(self.command, seen_to);
         if let (true, Some(v)) = (untried, seen_from) {
@@ -384,13 +388,7 @@ impl CavityAgent {
             return false;
         };
         self.last_check_seen = seen_to.and_then(Sighting::fit_centre).is_some();
-        match (predicted, seen_to) {
-            (Some(p), Some(Sighting::Clean(centre))) => {
-                distance(p, centre)
-                    < (CONFIRM_RADII * radius).max(3.0 * self.scales.position_noise())
-            }
-            _ => false,
-        }
+        predicted.is_some() && believed
     }
 
     /// While the secondary was never seen: light that appeared on the edge of the primary's

@@ -5,7 +5,7 @@
 //! moves it more; between reversals nothing is lost, so only reversals teach it.
 
 use super::model::Vec2;
-use super::play::settle;
+use super::play::{self, settle};
 
 /// A reversal teaches the band only when the load moved by more than this share of the
 /// intended move away from it (less is read noise or a response not quite right).
@@ -59,20 +59,9 @@ impl Lash {
         self.load = settle(self.load, command, self.band);
     }
 
-    /// The command that puts the load at `target`: an axis whose load must move is sent
-    /// past the target by half the band, on the side it approaches from; one already there
-    /// stays where it is.
+    /// The command that puts the load at `target` ([`play::command_for`]).
     pub fn command_for(&self, target: Vec2) -> Vec2 {
-        [0, 1].map(|axis| {
-            let half = self.band[axis] / 2.0;
-            if target[axis] > self.load[axis] + SAME_STEP {
-                target[axis] + half
-            } else if target[axis] < self.load[axis] - SAME_STEP {
-                target[axis] - half
-            } else {
-                self.command[axis]
-            }
-        })
+        play::command_for(target, self.load, self.band, self.command, SAME_STEP)
     }
 
     /// Learns from the last command, made from a load where the spot was seen, when the

@@ -5,6 +5,7 @@
 //! with a further measurement, and declares done only when the images agree.
 
 mod backdrops;
+mod bench;
 mod cavity;
 mod lash;
 mod michelson;
@@ -14,6 +15,7 @@ mod relay;
 mod see;
 mod servo;
 mod sight;
+mod tuning;
 
 use async_trait::async_trait;
 

@@ -33,6 +33,22 @@ pub fn settle(load: Vec2, command: Vec2, band: Vec2) -> Vec2 {
     })
 }
 
+/// The command that puts a load now at `load` at `target`, with a band of `band` steps per
+/// axis: an axis whose load must move (by more than `same` steps) goes past the target by
+/// half the band, on the side it approaches from; one already there stays at `current`.
+pub fn command_for(target: Vec2, load: Vec2, band: Vec2, current: Vec2, same: f64) -> Vec2 {
+    [0, 1].map(|axis| {
+        let half = band[axis] / 2.0;
+        if target[axis] > load[axis] + same {
+            target[axis] + half
+        } else if target[axis] < load[axis] - same {
+            target[axis] - half
+        } else {
+            current[axis]
+        }
+    })
+}
+
 /// The load along a command `path` (the first command is where the mount started) for
 /// the mount's `play`.
 pub fn trajectory(path: &[Vec2], play: Play) -> Vec<Vec2> {

@@ -2,8 +2,8 @@
 //! known: a trust-region servo. Two probes from the best tilt so far (one per axis) give
 //! the response, then Newton steps from the best tilt, no longer than a trust radius that
 //! grows after a step that brought the spot closer and shrinks after one that did not
-//! (the next step starts from the best tilt again), refined by Broyden updates on whole
-//! spots. When the sensor's edge cuts the spot, what shows of it moves the right way but
+//! (the next step starts from the best tilt again), refined on whole spots by the bench
+//! model (`bench`), whose prior is the probed response. When the sensor's edge cuts the spot, what shows of it moves the right way but
 //! less than the beam across the edge: the response is then taken as the rotation (or
 //! mirror image) that best fits the two probes, at the larger of their scales, because a
 //! mount's two tilt axes deflect the beam at right angles. A response that was not measured
@@ -18,7 +18,9 @@
 
 use nalgebra::Matrix2;
 
+use super::bench::Response;
 use super::model::{Affine, Vec2, carried, column_norm, distance};
+use super::tuning::{GAIN_PRIOR_SHARE, MIN_NOISE_PX, PRIOR_OFFSET_PX};
 
 /// A cut spot counts as this many image shorter sides farther than any whole one, less
 /// the share of a whole spot's light it shows.
@@ -98,8 +100,11 @@ pub struct Servo {
     /// Shortest and longest probe or step, steps.
     bounds: Vec2,
     pending: Pending,
-    /// The last tilt and spot seen, for Broyden updates.
+    /// The last tilt and spot seen, for the model's updates.
     last: Option<(Vec2, Spot)>,
+    /// The bench model refining the response from steps between whole spots, from the
+    /// first such step after the response was set.
+    belief: Option<Response>,
     /// The most light a spot showed, for how much of a cut one shows.
     brightest: f64,
     /// The way the next round of probes first goes (+1, -1).
@@ -123,6 +128,7 @@ impl Servo {
             bounds,
             pending: Pending::Nothing,
             last: None,
+            belief: None,
             brightest: 0.0,
             probe_sign: 1.0,
             refuted_at: None,
@@ -133,6 +139,7 @@ impl Servo {
     /// until the first step between whole spots confirms or refutes it.
     pub fn assume(mut self, gain: [[f64; 2]; 2]) -> Self {
         self.gain = Some(gain);
+        self.belief = None;
         self.trust = Trust::Assumed;
         self
     }
@@ -176,6 +183,7 @@ impl Servo {
     /// Drops the response: the next commands probe both axes again from the best tilt.
     fn drop_gain(&mut self) {
         self.gain = None;
+        self.belief = None;
         self.trust = Trust::Measured;
         self.columns = [None; 2];
         self.pending = Pending::Nothing;
@@ -278,7 +286,8 @@ impl Servo {
     }
 
     /// What a step from the last spot seen to `tilt` (where `seen` showed, `better` than
-    /// the best before) says of the response: between whole spots it refines it (Broyden);
+    /// the best before) says of the response: between whole spots it refines it (the bench
+    /// model);
     /// an assumed one is confirmed by a step between whole spots that lands where it
     /// predicted, kept on trial by one that missed but still did good, and refuted by one
     /// that lost the spot or did no good.
@@ -304,11 +313,26 @@ impl Servo {
             }
         }
         // A move too short to show beyond the centroids' noise teaches nothing.
-        if let (Some((from, was, now)), Some(gain)) = (between_whole, &mut self.gain)
-            && distance(was.at, now.at).max(distance(carried(*gain, from, was.at, tilt), was.at))
+        if let Some((from, was, now)) = between_whole
+            && distance(was.at, now.at).max(distance(carried(gain, from, was.at, tilt), was.at))
                 >= MIN_MOVE_SHARE * side
         {
-            broyden(gain, from, was.at, tilt, now.at);
+            let noise = Matrix2::identity() * MIN_NOISE_PX * MIN_NOISE_PX;
+            let belief = self.belief.get_or_insert_with(|| {
+                let prior = Affine {
+                    offset: was.at,
+                    gain,
+                }
+                .anchored(from, was.at);
+                let spread = GAIN_PRIOR_SHARE * column_norm(gain);
+                let mut belief = Response::with_prior(from, prior, PRIOR_OFFSET_PX, spread);
+                belief.add(from, was.at, noise);
+                belief
+            });
+            belief.add(tilt, now.at, noise);
+            if let Some(refined) = belief.mean() {
+                self.gain = Some(refined.gain);
+            }
         }
     }
 
@@ -408,22 +432,6 @@ fn rotation_fit(measured: [[f64; 2]; 2]) -> [[f64; 2]; 2] {
     let scale = svd.singular_values.max();
     let q = u * v_t * scale;
     [[q[(0, 0)], q[(0, 1)]], [q[(1, 0)], q[(1, 1)]]]
-}
-
-/// Broyden's update of `gain` from a move of `du` (from tilt `from` to `to`) that moved
-/// the spot from `was` to `now`.
-fn broyden(gain: &mut [[f64; 2]; 2], from: Vec2, was: Vec2, to: Vec2, now: Vec2) {
-    let du = [to[0] - from[0], to[1] - from[1]];
-    let norm = du[0] * du[0] + du[1] * du[1];
-    if norm < 1.0 {
-        return;
-    }
-    let dp = [now[0] - was[0], now[1] - was[1]];
-    for (r, row) in gain.iter_mut().enumerate() {
-        let miss = dp[r] - (row[0] * du[0] + row[1] * du[1]);
-        row[0] += miss * du[0] / norm;
-        row[1] += miss * du[1] / norm;
-    }
 }
 
 #[cfg(test)]

@@ -8,6 +8,7 @@
 
 use super::model::{Sighting, Vec2, distance};
 use super::see::View;
+use super::tuning::MIN_NOISE_PX;
 use crate::imaging::Beam;
 
 /// Before any beam was measured, a beam is taken to be this share of the image's shorter
@@ -20,9 +21,6 @@ const DEFAULT_STEADY_RADII: f64 = 0.15;
 
 /// Stationary features may seem to move this many times their measured RMS displacement.
 const STEADY_SPREAD: f64 = 4.0;
-
-/// The noise a map's fit allows for is at least this, px (a centroid is rarely better).
-const MIN_MODEL_NOISE_PX: f64 = 0.5;
 
 /// A spot fit worse than this (RMS share of the peak) is two spots merged or not a
 /// Gaussian beam: its centre is not extrapolated.
@@ -156,7 +154,7 @@ impl Scales {
 
     /// The position noise a map fitted to sightings allows for, px.
     pub fn model_noise(&self) -> f64 {
-        self.position_noise().max(MIN_MODEL_NOISE_PX)
+        self.position_noise().max(MIN_NOISE_PX)
     }
 
     /// What the agent learned about the bench, for the transcript.

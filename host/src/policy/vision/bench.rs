@@ -1,0 +1,391 @@
+//! The agent's one model of the bench: for a two-axis mount, where its feature lands,
+//! `image = offset + gain · command`, as a linear-Gaussian belief over the six numbers
+//! (offset 2, gain 2 x 2) with their covariance. Each sighting adds its information
+//! (recursive least squares in information form, so a sighting can also be taken out
+//! again); the measurement noise is the centre's scatter. From the belief follow every
+//! decision the agents make of it: whether a sighting is believed (a chi-square test of
+//! its innovation), where a command puts the feature and how surely, and whether the
+//! final command is within a tolerance at a stated confidence.
+
+use nalgebra::{Matrix2, Matrix2x6, Matrix6, Vector2, Vector6};
+
+use super::model::{Affine, Vec2};
+use super::tuning::{GATE_CONFIDENCE, PRIOR_GAIN_PX_PER_STEP, PRIOR_OFFSET_PX};
+
+/// The chi-square quantile of two degrees of freedom at probability `p`: that distribution
+/// is exponential with mean 2, so `P(d² <= q) = 1 - exp(-q / 2)`.
+pub fn chi2_quantile(p: f64) -> f64 {
+    -2.0 * (1.0 - p).ln()
+}
+
+/// The median of the chi-square distribution of two degrees of freedom (2 ln 2).
+const CHI2_MEDIAN: f64 = 2.0 * std::f64::consts::LN_2;
+
+/// Whether a zero-mean 2-D Gaussian error of covariance `cov` (px²) lies within
+/// `tolerance` px with at least probability `confidence` (bounded by its larger axis).
+pub fn sure_within(cov: Matrix2<f64>, tolerance: f64, confidence: f64) -> bool {
+    let largest = cov.symmetric_eigenvalues().max();
+    largest * chi2_quantile(confidence) <= tolerance * tolerance
+}
+
+/// The observation matrix of a command (relative to the model's origin).
+fn observation(u: Vec2) -> Matrix2x6<f64> {
+    Matrix2x6::new(
+        1.0, 0.0, u[0], u[1], 0.0, 0.0, //
+        0.0, 1.0, 0.0, 0.0, u[0], u[1],
+    )
+}
+
+/// The belief about one mount's response, in information form about a command `origin`
+/// (commands are taken relative to it, which keeps the numbers well conditioned).
+#[derive(Clone, Debug)]
+pub struct Response {
+    origin: Vec2,
+    information: Matrix6<f64>,
+    projected: Vector6<f64>,
+}
+
+impl Response {
+    /// Nothing known but that the feature is somewhere near the image and the mount
+    /// moves it by less than a broad bound ([`PRIOR_OFFSET_PX`], [`PRIOR_GAIN_PX_PER_STEP`]).
+    pub fn broad(origin: Vec2) -> Self {
+        let nothing = Affine {
+            offset: [0.0; 2],
+            gain: [[0.0; 2]; 2],
+        };
+        Self::with_prior(origin, nothing, PRIOR_OFFSET_PX, PRIOR_GAIN_PX_PER_STEP)
+    }
+
+    /// A prior centred on `mean` (a nominal response), with standard deviations
+    /// `offset_sd` px and `gain_sd` px per step.
+    pub fn with_prior(origin: Vec2, mean: Affine, offset_sd: f64, gain_sd: f64) -> Self {
+        let at = mean.predict(origin);
+        let [[a, b], [c, d]] = mean.gain;
+        let x = Vector6::new(at[0], at[1], a, b, c, d);
+        let (o, g) = (offset_sd.powi(-2), gain_sd.powi(-2));
+        let information = Matrix6::from_diagonal(&Vector6::new(o, o, g, g, g, g));
+        Self {
+            origin,
+            projected: information * x,
+            information,
+        }
+    }
+
+    fn relative(&self, command: Vec2) -> Vec2 {
+        [command[0] - self.origin[0], command[1] - self.origin[1]]
+    }
+
+    /// Adds (`sign` 1) or takes out (-1) a sighting of the feature at `image` for
+    /// `command`, measured with covariance `noise` (px²).
+    fn absorb(&mut self, command: Vec2, image: Vec2, noise: Matrix2<f64>, sign: f64) {
+        let h = observation(self.relative(command));
+        let Some(weight) = noise.try_inverse() else {
+            return;
+        };
+        let ht_w = h.transpose() * weight;
+        self.information += sign * ht_w * h;
+        self.projected += sign * ht_w * Vector2::new(image[0], image[1]);
+    }
+
+    /// Learns from a sighting.
+    pub fn add(&mut self, command: Vec2, image: Vec2, noise: Matrix2<f64>) {
+        self.absorb(command, image, noise, 1.0);
+    }
+
+    /// The mean and covariance of the six numbers, `None` when the information is not
+    /// positive definite (cannot happen with a prior, short of overflow).
+    fn state(&self) -> Option<(Vector6<f64>, Matrix6<f64>)> {
+        let cholesky = self.information.cholesky()?;
+        Some((cholesky.solve(&self.projected), cholesky.inverse()))
+    }
+
+    /// The most likely map.
+    pub fn mean(&self) -> Option<Affine> {
+        let (x, _) = self.state()?;
+        let [[a, b], [c, d]] = [[x[2], x[3]], [x[4], x[5]]];
+        let [o0, o1] = self.origin;
+        Some(Affine {
+            offset: [x[0] - a * o0 - b * o1, x[1] - c * o0 - d * o1],
+            gain: [[a, b], [c, d]],
+        })
+    }
+
+    /// Where the feature shows for `command` and the covariance of that place (px²) from
+    /// what the model does not know (the detector's scatter not included).
+    pub fn predict(&self, command: Vec2) -> Option<(Vec2, Matrix2<f64>)> {
+        let (x, p) = self.state()?;
+        let h = observation(self.relative(command));
+        let mean = h * x;
+        Some(([mean[0], mean[1]], h * p * h.transpose()))
+    }
+
+    /// The squared Mahalanobis distance of a sighting from the model's prediction, with
+    /// the sighting's own covariance `noise` added to the prediction's.
+    pub fn surprise(&self, command: Vec2, image: Vec2, noise: Matrix2<f64>) -> Option<f64> {
+        let (mean, cov) = self.predict(command)?;
+        let miss = Vector2::new(image[0] - mean[0], image[1] - mean[1]);
+        let inverse = (cov + noise).try_inverse()?;
+        Some((miss.transpose() * inverse * miss)[0])
+    }
+
+    /// Whether the model believes a sighting: its innovation passes the chi-square test at
+    /// [`GATE_CONFIDENCE`].
+    pub fn believes(&self, command: Vec2, image: Vec2, noise: Matrix2<f64>) -> bool {
+        self.surprise(command, image, noise)
+            .is_none_or(|d2| d2 <= chi2_quantile(GATE_CONFIDENCE))
+    }
+}
+
+/// The share of the sightings the core of a robust fit is made of: the subset of this size
+/// the model fits best (least trimmed squares), so that a minority of foreign sightings (two
+/// beams seen merged, a cut spot) cannot pull it, probability-free.
+const CORE_SHARE: f64 = 0.6;
+
+/// Subsets for the core are tried exhaustively up to this many sightings, greedily beyond.
+const CORE_EXHAUSTIVE: usize = 12;
+
+/// The model of `points` (command, image) each with an isotropic scatter of `noise` px.
+fn model_of<'a>(points: impl Iterator<Item = &'a (Vec2, Vec2)> + Clone, noise: f64) -> Response {
+    let n = points.clone().count().max(1) as f64;
+    let origin = [0, 1].map(|a| points.clone().map(|p| p.0[a]).sum::<f64>() / n);
+    let r = Matrix2::identity() * noise * noise;
+    let mut model = Response::broad(origin);
+    for (u, z) in points {
+        model.add(*u, *z, r);
+    }
+    model
+}
+
+/// The sum of squared misses of `subset` from `model`, px².
+fn squares(model: &Response, subset: &[(Vec2, Vec2)]) -> f64 {
+    let Some(map) = model.mean() else {
+        return f64::INFINITY;
+    };
+    subset
+        .iter()
+        .map(|(u, z)| {
+            let p = map.predict(*u);
+            (p[0] - z[0]).powi(2) + (p[1] - z[1]).powi(2)
+        })
+        .sum()
+}
+
+/// The model of the [`CORE_SHARE`] of `points` it fits best (at least `min_keep`), `None`
+/// when that is all of them.
+fn core(points: &[(Vec2, Vec2)], noise: f64, min_keep: usize) -> Option<Response> {
+    let keep = ((CORE_SHARE * points.len() as f64).ceil() as usize).max(min_keep);
+    if keep >= points.len() {
+        return None;
+    }
+    if points.len() <= CORE_EXHAUSTIVE {
+        return (0u32..1 << points.len())
+            .filter(|mask| mask.count_ones() as usize == keep)
+            .map(|mask| {
+                let subset: Vec<(Vec2, Vec2)> = (0..points.len())
+                    .filter(|i| mask & (1 << i) != 0)
+                    .map(|i| points[i])
+                    .collect();
+                let model = model_of(subset.iter(), noise);
+                (squares(&model, &subset), model)
+            })
+            .min_by(|a, b| a.0.total_cmp(&b.0))
+            .map(|(_, model)| model);
+    }
+    let mut subset = points.to_vec();
+    let mut model = model_of(subset.iter(), noise);
+    while subset.len() > keep {
+        let map = model.mean()?;
+        let miss = |p: &(Vec2, Vec2)| {
+            let at = map.predict(p.0);
+            (at[0] - p.1[0]).hypot(at[1] - p.1[1])
+        };
+        let worst =
+            (0..subset.len()).max_by(|&a, &b| miss(&subset[a]).total_cmp(&miss(&subset[b])))?;
+        subset.remove(worst);
+        model = model_of(subset.iter(), noise);
+    }
+    Some(model)
+}
+
+/// The model of sightings `points` (command, image), each with an isotropic scatter of
+/// `noise` px, less those it does not believe: each sighting's innovation against the
+/// model of the [`CORE_SHARE`] of them it fits best is tested by chi-square, and those
+/// that fail are set aside, unless fewer than `min_keep` would remain. The scatter the
+/// sightings show beyond `noise` (a screw's pitch error, hysteresis: the bench, not a
+/// foreign beam) widens the test first, from the median of the innovations.
+pub fn robust_fit(points: &[(Vec2, Vec2)], noise: f64, min_keep: usize) -> Option<Fit> {
+    let full = model_of(points.iter(), noise);
+    let Some(core) = core(points, noise, min_keep) else {
+        return Some(Fit {
+            response: full,
+            kept: vec![true; points.len()],
+            widening: 1.0,
+        });
+    };
+    let r = Matrix2::identity() * noise * noise;
+    let surprises: Vec<f64> = points
+        .iter()
+        .map(|(u, z)| core.surprise(*u, *z, r).unwrap_or(0.0))
+        .collect();
+    let mut sorted = surprises.clone();
+    sorted.sort_by(f64::total_cmp);
+    let widening = (sorted[sorted.len() / 2] / CHI2_MEDIAN).max(1.0);
+    let gate = chi2_quantile(GATE_CONFIDENCE) * widening;
+    let kept: Vec<bool> = surprises.iter().map(|d2| *d2 <= gate).collect();
+    if kept.iter().filter(|k| **k).count() < min_keep {
+        return Some(Fit {
+            response: full,
+            kept: vec![true; points.len()],
+            widening,
+        });
+    }
+    let response = model_of(
+        points
+            .iter()
+            .zip(&kept)
+            .filter(|(_, k)| **k)
+            .map(|(p, _)| p),
+        noise,
+    );
+    Some(Fit {
+        response,
+        kept,
+        widening,
+    })
+}
+
+/// A model fitted to sightings by [`robust_fit`].
+#[derive(Clone, Debug)]
+pub struct Fit {
+    pub response: Response,
+    /// Which sightings it kept.
+    pub kept: Vec<bool>,
+    /// How many times the detector's variance the sightings scatter by (at least 1).
+    pub widening: f64,
+}
+
+impl Fit {
+    /// Whether a new sighting passes the chi-square test with a scatter of `noise` px,
+    /// widened as the kept sightings showed.
+    pub fn believes(&self, command: Vec2, image: Vec2, noise: f64) -> bool {
+        let r = Matrix2::identity() * noise * noise * self.widening;
+        self.response.believes(command, image, r)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn truth() -> Affine {
+        Affine {
+            offset: [320.0, 240.0],
+            gain: [[0.05, -0.01], [0.02, 0.04]],
+        }
+    }
+
+    fn noise(px: f64) -> Matrix2<f64> {
+        Matrix2::identity() * px * px
+    }
+
+    /// Deterministic scatter in [-1, 1].
+    fn wobble(i: usize) -> f64 {
+        ((i as f64 * 12.9898).sin() * 43_758.547).fract()
+    }
+
+    #[test]
+    fn learns_an_exact_map_and_grows_sure_with_sightings() {
+        let mut model = Response::broad([0.0, 0.0]);
+        let commands = [[0.0, 0.0], [400.0, 0.0], [0.0, 400.0], [400.0, 400.0]];
+        let mut spreads = Vec::new();
+        for u in commands {
+            model.add(u, truth().predict(u), noise(1.0));
+            let (_, cov) = model.predict([200.0, 200.0]).unwrap();
+            spreads.push(cov.trace());
+        }
+        let fitted = model.mean().unwrap();
+        for (row, want) in fitted.gain.iter().zip(truth().gain) {
+            for (g, w) in row.iter().zip(want) {
+                assert!((g - w).abs() < 1e-6, "{fitted:?}");
+            }
+        }
+        assert!((fitted.offset[0] - 320.0).abs() < 1e-3, "{fitted:?}");
+        assert!(spreads.windows(2).all(|w| w[1] < w[0]), "{spreads:?}");
+        let (_, cov) = model.predict([200.0, 200.0]).unwrap();
+        assert!(sure_within(cov, 3.0, 0.95), "{cov}");
+        assert!(!sure_within(cov, 0.1, 0.95), "{cov}");
+    }
+
+    #[test]
+    fn a_sighting_far_off_the_model_fails_the_chi_square_test() {
+        let mut model = Response::broad([0.0, 0.0]);
+        for (i, u) in [
+            [0.0, 0.0],
+            [300.0, 0.0],
+            [0.0, 300.0],
+            [300.0, 300.0],
+            [150.0, 0.0],
+        ]
+        .into_iter()
+        .enumerate()
+        {
+            let p = truth().predict(u);
+            model.add(u, [p[0] + wobble(i), p[1] - wobble(i + 7)], noise(1.0));
+        }
+        let u = [100.0, 200.0];
+        let p = truth().predict(u);
+        assert!(model.believes(u, [p[0] + 1.5, p[1] - 1.0], noise(1.0)));
+        assert!(!model.believes(u, [p[0] + 25.0, p[1]], noise(1.0)));
+        // The same miss is believed of a sighting the detector itself gives 15 px of scatter.
+        assert!(model.believes(u, [p[0] + 25.0, p[1]], noise(15.0)));
+    }
+
+    #[test]
+    fn a_foreign_sighting_is_set_aside_and_bench_scatter_is_not() {
+        // Sixteen sightings on a grid; a scatter of about 2 px per axis on 0.5 px of
+        // detector noise: the bench's (a screw's pitch error), every sighting has it.
+        let scatter =
+            |i: usize| (wobble(i) + wobble(i + 100) + wobble(i + 200)) * 2.0 / 3f64.sqrt();
+        let mut points: Vec<(Vec2, Vec2)> = (0..16)
+            .map(|i| {
+                let u = [(i % 4) as f64 * 200.0, (i / 4) as f64 * 200.0];
+                let p = truth().predict(u);
+                (u, [p[0] + scatter(i), p[1] + scatter(i + 50)])
+            })
+            .collect();
+        let fit = robust_fit(&points, 0.5, 4).unwrap();
+        assert!(fit.kept.iter().all(|k| *k), "{:?}", fit.kept);
+        assert!(fit.widening > 1.0, "{}", fit.widening);
+        // Another beam 60 px off taken for this one.
+        points[5].1[0] += 60.0;
+        let fit = robust_fit(&points, 0.5, 4).unwrap();
+        assert_eq!(
+            fit.kept.iter().filter(|k| !**k).count(),
+            1,
+            "{:?}",
+            fit.kept
+        );
+        assert!(!fit.kept[5]);
+        let fitted = fit.response.mean().unwrap();
+        assert!((fitted.gain[0][0] - 0.05).abs() < 0.005, "{fitted:?}");
+    }
+
+    #[test]
+    fn a_nominal_prior_needs_fewer_sightings() {
+        let nominal = Affine {
+            offset: [0.0; 2],
+            gain: truth().gain,
+        };
+        let mut model = Response::with_prior([0.0, 0.0], nominal, PRIOR_OFFSET_PX, 0.002);
+        model.add([0.0, 0.0], truth().predict([0.0, 0.0]), noise(1.0));
+        let (at, cov) = model.predict([500.0, -300.0]).unwrap();
+        let want = truth().predict([500.0, -300.0]);
+        assert!((at[0] - want[0]).hypot(at[1] - want[1]) < 0.5, "{at:?}");
+        assert!(cov.trace().sqrt() < 3.0, "{cov}");
+        // With nothing known of the response, one sighting says nothing of another command.
+        let mut broad = Response::broad([0.0, 0.0]);
+        broad.add([0.0, 0.0], truth().predict([0.0, 0.0]), noise(1.0));
+        let (_, cov) = broad.predict([500.0, -300.0]).unwrap();
+        assert!(cov.trace().sqrt() > 1000.0, "{cov}");
+    }
+}
