@@ -104,11 +104,9 @@ impl Axis {
         let turned = (count as i32).wrapping_mul(travel.sign());
         self.motor_steps = self.motor_steps.wrapping_add(turned);
         let direction = self.direction(travel);
-        let delta = match direction {
-            StepDirection::Forward => count as i32,
-            StepDirection::Backward => (count as i32).wrapping_neg(),
-        };
-        self.coil_steps = self.coil_steps.wrapping_add(delta);
+        self.coil_steps = self
+            .coil_steps
+            .wrapping_add((count as i32).wrapping_mul(direction.sign()));
         (direction, self.coil_steps)
     }
 
@@ -127,11 +125,7 @@ impl Axis {
         }
         self.motor_steps = self.motor_steps.wrapping_add(travel.sign());
         let direction = self.direction(travel);
-        let delta = match direction {
-            StepDirection::Forward => 1,
-            StepDirection::Backward => -1,
-        };
-        self.coil_steps = self.coil_steps.wrapping_add(delta);
+        self.coil_steps = self.coil_steps.wrapping_add(direction.sign());
         (direction, self.coil_steps)
     }
 }

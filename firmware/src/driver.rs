@@ -7,6 +7,16 @@ pub enum StepDirection {
     Backward,
 }
 
+impl StepDirection {
+    /// +1 for a forward step, -1 for a backward one: how a step moves the counter.
+    pub fn sign(self) -> i32 {
+        match self {
+            Self::Forward => 1,
+            Self::Backward => -1,
+        }
+    }
+}
+
 /// What the core asks of the hardware (or of a simulation).
 ///
 /// `motor_steps` is the axis's physical step counter *after* the step: it moves by +1 for
@@ -21,10 +31,7 @@ pub trait StepDriver {
     /// a run of one axis that was all due at once. One [`Self::step`] after another unless
     /// a driver can do better (a simulation).
     fn steps(&mut self, axis: u8, direction: StepDirection, count: u32, motor_steps: i32) {
-        let delta = match direction {
-            StepDirection::Forward => 1i32,
-            StepDirection::Backward => -1,
-        };
+        let delta = direction.sign();
         for left in (0..count).rev() {
             // Modular like the counter itself: `left as i32` wraps as the counter does.
             self.step(

@@ -85,10 +85,17 @@ impl Run {
         self.next_us.max(self.origin_us.saturating_add(last))
     }
 
-    /// Marks every remaining step made.
-    fn finish(&mut self) {
-        self.next_us = self.last_step_us();
+    /// Marks every remaining step made and returns them as one run.
+    fn finish(&mut self) -> DueRun {
+        let due = DueRun {
+            axis: self.axis,
+            travel: self.travel,
+            steps: self.remaining(),
+            last_at_us: self.last_step_us(),
+        };
+        self.next_us = due.last_at_us;
         self.done = self.ramp.steps();
+        due
     }
 
     fn advance(&mut self) {
@@ -280,13 +287,7 @@ impl Move {
             let run = runs
                 .iter_mut()
                 .find(|r| !r.is_done() && r.last_step_us() <= now_us)?;
-            let due = DueRun {
-                axis: run.axis,
-                travel: run.travel,
-                steps: run.remaining(),
-                last_at_us: run.last_step_us(),
-            };
-            run.finish();
+            let due = run.finish();
             self.last_us = self.last_us.max(due.last_at_us);
             return Some(due);
         }

@@ -194,7 +194,7 @@ impl MountModel {
             self.play == 0
         };
         if presses {
-            let next = self.shaft.saturating_add(if forward { 1 } else { -1 });
+            let next = self.shaft.saturating_add(direction.sign());
             if let Some(stall) = &self.stall
                 && (stall.min..=stall.max).contains(&next)
                 && self.rng.chance(stall.threshold)
@@ -209,7 +209,7 @@ impl MountModel {
         } else {
             self.play -= 1;
         }
-        self.motor = self.motor.wrapping_add(if forward { 1 } else { -1 });
+        self.motor = self.motor.wrapping_add(direction.sign());
         true
     }
 
@@ -363,7 +363,7 @@ mod tests {
         ];
         let mut counters = [0i32; 2];
         for (axis, direction, count) in runs {
-            let delta = if direction == Forward { 1 } else { -1 };
+            let delta = direction.sign();
             let first = counters[usize::from(axis)];
             let last = first + delta * count;
             whole.steps(axis, direction, count as u32, last);
