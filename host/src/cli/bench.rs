@@ -72,6 +72,16 @@ pub struct BenchArgs {
     vlm: VlmArgs,
 }
 
+/// The progress bar of a matrix of runs (its length is set when the runs are planned).
+pub(super) fn runs_progress() -> anyhow::Result<ProgressBar> {
+    Ok(ProgressBar::new(0).with_style(
+        ProgressStyle::with_template(
+            "{bar:40.cyan/blue} {pos}/{len} runs  {elapsed_precise} (eta {eta})",
+        )?
+        .progress_chars("=> "),
+    ))
+}
+
 /// Seeds as `--seeds` names them.
 #[derive(Clone, Debug)]
 pub(super) struct SeedList(pub(super) Vec<u64>);
@@ -202,12 +212,7 @@ pub async fn run(args: BenchArgs) -> anyhow::Result<()> {
         },
         sweeps,
     };
-    let progress = ProgressBar::new(0).with_style(
-        ProgressStyle::with_template(
-            "{bar:40.cyan/blue} {pos}/{len} runs  {elapsed_precise} (eta {eta})",
-        )?
-        .progress_chars("=> "),
-    );
+    let progress = runs_progress()?;
     let output = tokio::task::spawn_blocking(move || {
         run_bench(&plan, &progress).map(|output| (plan, output))
     })

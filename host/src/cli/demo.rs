@@ -9,9 +9,8 @@ use std::path::PathBuf;
 use std::sync::Arc;
 
 use clap::Args;
-use indicatif::{ProgressBar, ProgressStyle};
 
-use super::bench::{SeedList, parse_seed_list, resolve_policies};
+use super::bench::{SeedList, parse_seed_list, resolve_policies, runs_progress};
 use crate::bench::report::write_report;
 use crate::bench::{BenchPlan, MatrixOptions, SavedFrames, default_jobs, run_bench};
 use crate::rig::MotorPath;
@@ -94,10 +93,7 @@ pub async fn run(args: DemoArgs) -> anyhow::Result<()> {
         },
         sweeps: Vec::new(),
     };
-    let progress = ProgressBar::new(0).with_style(
-        ProgressStyle::with_template("{bar:40.cyan/blue} {pos}/{len} runs  {elapsed_precise}")?
-            .progress_chars("=> "),
-    );
+    let progress = runs_progress()?;
     let (output, report) = tokio::task::spawn_blocking(move || {
         let output = run_bench(&plan, &progress)?;
         let intro = format!(
