@@ -4,10 +4,10 @@
 //! log marginal likelihood with multi-start L-BFGS on a bounded reparametrisation, using
 //! the analytic gradient.
 
+use nalgebra::{Cholesky, DMatrix, DVector, Dyn};
 use rand::Rng;
 
 use super::kernel::Matern52;
-use super::linalg::Cholesky;
 use super::optimise::lbfgs;
 
 /// Bounds of the fitted hyperparameters, for inputs in [0, 1] and standardised outputs.
@@ -108,9 +108,9 @@ pub struct GaussianProcess {
     noise_variance: f64,
     output_mean: f64,
     output_scale: f64,
-    cholesky: Cholesky,
+    cholesky: Cholesky<f64, Dyn>,
     /// K⁻¹ y on the standardised outputs.
-    weights: Vec<f64>,
+    weights: DVector<f64>,
     log_marginal_likelihood: f64,
 }
 
@@ -124,10 +124,9 @@ impl GaussianProcess {
         let data = Standardised::new(&inputs, outputs)?;
         let kernel = Matern52::new(hyper.length_scales.clone(), hyper.signal_variance);
         let covariance = covariance(&inputs, &kernel, hyper.noise_variance);
-        let cholesky =
-            Cholesky::new(covariance, inputs.len()).ok_or(GpError::NotPositiveDefinite)?;
-        let weights = cholesky.solve(&data.values);
-        let log_marginal_likelihood = log_likelihood(&cholesky, &data.values, &weights);
+        let cholesky = factor(covariance).ok_or(GpError::NotPositiveDefinite)?;
+        let weights = cholesky.solve(&DVector::from_column_slice(&data.values));
+        let log_marginal_likelihood = log_likelihood(&cholesky, &data.values, weights.as_slice());
         Ok(Self {
             inputs,
             kernel,
@@ -196,17 +195,15 @@ impl GaussianProcess {
 
     /// The posterior of the latent function at `x`, on the standardised scale.
     pub fn predict_standardised(&self, x: &[f64]) -> Prediction {
-        let mut cross: Vec<f64> = self
-            .inputs
-            .iter()
-            .map(|xi| self.kernel.value(x, xi))
-            .collect();
-        let mut mean = 0.0;
-        for (k, w) in cross.iter().zip(&self.weights) {
-            mean += k * w;
-        }
-        self.cholesky.solve_lower(&mut cross);
-        let explained: f64 = cross.iter().map(|v| v * v).sum();
+        let mut cross = DVector::from_iterator(
+            self.inputs.len(),
+            self.inputs.iter().map(|xi| self.kernel.value(x, xi)),
+        );
+        let mean = cross.dot(&self.weights);
+        self.cholesky
+            .l_dirty()
+            .solve_lower_triangular_mut(&mut cross);
+        let explained = cross.norm_squared();
         Prediction {
             mean,
             variance: (self.kernel.signal_variance - explained).max(0.0),
@@ -266,23 +263,26 @@ impl Standardised {
 }
 
 /// K + noise I, row-major.
-fn covariance(inputs: &[Vec<f64>], kernel: &Matern52, noise_variance: f64) -> Vec<f64> {
+fn covariance(inputs: &[Vec<f64>], kernel: &Matern52, noise_variance: f64) -> DMatrix<f64> {
     let n = inputs.len();
-    let mut k = vec![0.0; n * n];
-    for a in 0..n {
-        k[a * n + a] = kernel.signal_variance + noise_variance;
-        for b in 0..a {
-            let value = kernel.value(&inputs[a], &inputs[b]);
-            k[a * n + b] = value;
-            k[b * n + a] = value;
-        }
-    }
-    k
+    DMatrix::from_fn(n, n, |a, b| {
+        kernel.value(&inputs[a], &inputs[b]) + if a == b { noise_variance } else { 0.0 }
+    })
 }
 
-fn log_likelihood(cholesky: &Cholesky, y: &[f64], weights: &[f64]) -> f64 {
+/// The Cholesky factor of a covariance matrix (only its lower triangle is read); `None`
+/// when it is not positive definite or holds a number that is not finite.
+fn factor(covariance: DMatrix<f64>) -> Option<Cholesky<f64, Dyn>> {
+    if covariance.iter().all(|v| v.is_finite()) {
+        Cholesky::new(covariance)
+    } else {
+        None
+    }
+}
+
+fn log_likelihood(cholesky: &Cholesky<f64, Dyn>, y: &[f64], weights: &[f64]) -> f64 {
     let fit: f64 = y.iter().zip(weights).map(|(a, b)| a * b).sum();
-    -0.5 * fit - cholesky.half_log_det() - 0.5 * y.len() as f64 * LN_2PI
+    -0.5 * fit - 0.5 * cholesky.ln_determinant() - 0.5 * y.len() as f64 * LN_2PI
 }
 
 /// Squared differences of every pair of inputs per axis, which do not change while the
@@ -321,12 +321,12 @@ fn negative_log_likelihood(
     let (n, dims) = (pairs.n, pairs.dims);
     let kernel = Matern52::new(hyper.length_scales, hyper.signal_variance);
     let inverse_squares: Vec<f64> = kernel.length_scales.iter().map(|l| 1.0 / (l * l)).collect();
-    let mut k = vec![0.0; n * n];
+    let mut k = DMatrix::zeros(n, n);
     let mut pair_values = Vec::with_capacity(pairs.squared.len() / dims.max(1));
     let mut pair_slopes = Vec::with_capacity(pair_values.capacity());
     let mut p = 0;
     for a in 0..n {
-        k[a * n + a] = kernel.signal_variance + hyper.noise_variance;
+        k[(a, a)] = kernel.signal_variance + hyper.noise_variance;
         for b in 0..a {
             let diffs = &pairs.squared[p * dims..(p + 1) * dims];
             let mut r2 = 0.0;
@@ -334,28 +334,28 @@ fn negative_log_likelihood(
                 r2 += d * w;
             }
             let (value, slope) = kernel.value_and_slope(r2);
-            k[a * n + b] = value;
+            k[(a, b)] = value;
             pair_values.push(value);
             pair_slopes.push(slope);
             p += 1;
         }
     }
-    let Some(cholesky) = Cholesky::new(k, n) else {
+    let Some(cholesky) = factor(k) else {
         return f64::NAN;
     };
-    let alpha = cholesky.solve(y);
-    let likelihood = log_likelihood(&cholesky, y, &alpha);
+    let alpha = cholesky.solve(&DVector::from_column_slice(y));
+    let likelihood = log_likelihood(&cholesky, y, alpha.as_slice());
     let inverse = cholesky.inverse();
     let mut d_length = vec![0.0; dims];
     let mut d_signal = 0.0;
     let mut d_noise = 0.0;
     let mut p = 0;
     for a in 0..n {
-        let w_aa = alpha[a] * alpha[a] - inverse[a * n + a];
+        let w_aa = alpha[a] * alpha[a] - inverse[(a, a)];
         d_signal += w_aa * kernel.signal_variance;
         d_noise += w_aa * hyper.noise_variance;
         for b in 0..a {
-            let w_ab = 2.0 * (alpha[a] * alpha[b] - inverse[a * n + b]);
+            let w_ab = 2.0 * (alpha[a] * alpha[b] - inverse[(a, b)]);
             d_signal += w_ab * pair_values[p];
             let scale = w_ab * pair_slopes[p];
             let diffs = &pairs.squared[p * dims..(p + 1) * dims];

@@ -11,7 +11,6 @@
 pub mod acquisition;
 pub mod gp;
 pub mod kernel;
-pub mod linalg;
 pub mod optimise;
 pub mod space;
 
