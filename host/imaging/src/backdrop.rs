@@ -9,9 +9,7 @@ use optalign_optics::Frame;
 
 use super::cells::CellSums;
 use super::picture::{Picture, median};
-
-/// Side of the cells, px, over which the darker of the two frames is chosen.
-const CELL: usize = 8;
+use super::tuning::BACKDROP_CELL;
 
 /// The levels a place shows without the beam, gray levels.
 #[derive(Clone, Debug)]
@@ -34,8 +32,8 @@ impl Backdrop {
         }
         let scale = a.levels_per_count();
         let (width, height) = (a.width() as usize, a.height() as usize);
-        let sums_a = CellSums::new(a.pixels(), width, height, CELL);
-        let sums_b = CellSums::new(b.pixels(), width, height, CELL);
+        let sums_a = CellSums::new(a.pixels(), width, height, BACKDROP_CELL);
+        let sums_b = CellSums::new(b.pixels(), width, height, BACKDROP_CELL);
         let columns = sums_a.columns;
         let levels = a
             .pixels()
@@ -43,7 +41,7 @@ impl Backdrop {
             .zip(b.pixels())
             .enumerate()
             .map(|(i, (&pa, &pb))| {
-                let cell = (i / width / CELL) * columns + (i % width) / CELL;
+                let cell = (i / width / BACKDROP_CELL) * columns + (i % width) / BACKDROP_CELL;
                 f32::from(if sums_a.sums[cell] <= sums_b.sums[cell] {
                     pa
                 } else {
@@ -94,7 +92,7 @@ impl Backdrop {
 
 /// `light` (`width` wide, `height` high) less the median of its cells' means.
 fn without_offset(mut light: Vec<f32>, width: usize, height: usize) -> Vec<f32> {
-    let sums = CellSums::new(&light, width, height, CELL);
+    let sums = CellSums::new(&light, width, height, BACKDROP_CELL);
     let means: Vec<f64> = sums
         .sums
         .iter()

@@ -13,74 +13,12 @@ use std::collections::VecDeque;
 
 use super::gaussian::{GaussianFit, GaussianFitter};
 use super::picture::Picture;
-
-/// Pixels per side of the blocks the picture is reduced to for finding regions.
-const BLOCK: usize = 4;
-
-/// A block (averaged with its neighbours) holds light when it exceeds this many noise
-/// deviations of such an average.
-const THRESHOLD_NOISES: f64 = 4.5;
-
-/// Regions whose light is below this share of the strongest region's are dropped.
-const MIN_SHARE: f64 = 0.002;
-
-/// A region's light must exceed the noise summed over its pixels this many times.
-const MIN_SIGNIFICANCE: f64 = 8.0;
-
-/// Blocks above this share of a region's peak are its core.
-const CORE_SHARE: f32 = 0.2;
-
-/// A core found by [`Grid::split`] counts only when its peak stands this many noise
-/// deviations of a smoothed block above the core level: in heavy noise the level's contour
-/// breaks into islands that are one beam.
-const CORE_PROMINENCE_NOISES: f32 = 5.0;
-
-/// Two regions are one beam when their cores are nearer than this share of the distance
-/// between their centres (a dark node line or fringe inside one beam is narrow; the gap
-/// between two beams is wide)...
-const JOIN_GAP_SHARE: f64 = 0.35;
-
-/// ... and the weaker peak is at least this share of the stronger ...
-const JOIN_PEAK_SHARE: f32 = 0.2;
-
-/// ... and the light between them falls below this share of the weaker peak (beyond the
-/// noise): inside one beam the parts are parted by a dark line (a mode's node, a dark
-/// fringe, a speckle grain's edge), while between two beams whose tails overlap the tails
-/// add up: two Gaussians of one size keep more than 4 % of their peak between them until
-/// they are 2.8 radii apart, where their cores lie too far apart to be joined anyway.
-const JOIN_VALLEY_SHARE: f32 = 0.04;
-
-/// The valley may exceed that share by this many deviations of a block's mean.
-const JOIN_VALLEY_NOISES: f32 = 3.0;
-
-/// In the measuring window, blocks whose smoothed light lies within this many background
-/// misfits of the background count as none: the background is known no better there, and
-/// over a window of thousands of pixels such residue would outweigh the beam's wings.
-const MOMENT_FLOOR_MISFITS: f32 = 3.0;
-
-/// Half the side of the measuring window, in second-moment radii (1/e² radii of a Gaussian).
-const WINDOW_RADII: f64 = 2.5;
-
-/// The window iteration stops when the centre moves less than this, px.
-const SETTLED_PX: f64 = 0.01;
-
-/// Mean neighbour difference beyond the noise, over the mean light, above which a beam is
-/// speckle rather than a spot.
-const MAX_SPOT_ROUGHNESS: f64 = 0.15;
-
-/// A beam still this bright at the image border (share of its peak) is cut by it.
-const CLIPPED_SHARE: f64 = 0.05;
-
-/// This many saturated pixels make a saturated beam.
-const SATURATED_PIXELS: usize = 4;
-
-/// The spot fit uses blocks brighter than this share of the peak and this many block noise
-/// deviations: the faint rim carries mostly noise.
-const FIT_FLOOR_SHARE: f64 = 0.08;
-const FIT_FLOOR_NOISES: f64 = 3.0;
-
-/// A fitted radius beyond this multiple of the measured radius is a flat clump of noise.
-const MAX_FIT_RADIUS_SHARE: f64 = 3.0;
+use super::tuning::{
+    BLOCK, CLIPPED_SHARE, CORE_PROMINENCE_NOISES, CORE_SHARE, FIT_FLOOR_NOISES, FIT_FLOOR_SHARE,
+    JOIN_GAP_SHARE, JOIN_PEAK_SHARE, JOIN_VALLEY_NOISES, JOIN_VALLEY_SHARE, MAX_FIT_RADIUS_SHARE,
+    MAX_SPOT_ROUGHNESS, MIN_MOMENT_VARIANCE_PX2, MIN_REGION_BLOCKS, MIN_SHARE, MIN_SIGNIFICANCE,
+    MOMENT_FLOOR_MISFITS, MOMENT_WINDOW_RADII, SATURATED_PIXELS, SETTLED_PX, THRESHOLD_NOISES,
+};
 
 /// A beam found in a picture.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
@@ -392,7 +330,7 @@ impl Grid {
                     }
                 }
             }
-            if blocks.len() < 3 {
+            if blocks.len() < MIN_REGION_BLOCKS {
                 continue;
             }
             let light: f64 = blocks
@@ -846,7 +784,7 @@ fn faint_footprint(grid: &Grid, blocks: &[usize]) -> Option<Footprint> {
         .max(0.0)
         .sqrt()
         .max(BLOCK as f64);
-    let half = WINDOW_RADII * radius;
+    let half = MOMENT_WINDOW_RADII * radius;
     Some(Footprint {
         centre: fit.centre,
         radii: [radius, radius],
@@ -875,7 +813,7 @@ struct Footprint {
 }
 
 /// The footprint of beam `id` (its region blocks `blocks`) from its pixels' moments in a
-/// window of [`WINDOW_RADII`] second-moment radii, iterated until it settles.
+/// window of [`MOMENT_WINDOW_RADII`] second-moment radii, iterated until it settles.
 fn window_footprint(
     picture: &Picture,
     grid: &Grid,
@@ -905,8 +843,8 @@ fn window_footprint(
     }
     let floor = BLOCK as f64;
     let mut half = [
-        WINDOW_RADII * (2.0 * (vxx / s).sqrt()).max(floor),
-        WINDOW_RADII * (2.0 * (vyy / s).sqrt()).max(floor),
+        MOMENT_WINDOW_RADII * (2.0 * (vxx / s).sqrt()).max(floor),
+        MOMENT_WINDOW_RADII * (2.0 * (vyy / s).sqrt()).max(floor),
     ];
     for _ in 0..20 {
         let moments = window_moments(picture, grid, owner, id_u32, centre, half);
@@ -916,10 +854,10 @@ fn window_footprint(
         let shift = [moments.sx / moments.s, moments.sy / moments.s];
         centre = [centre[0] + shift[0], centre[1] + shift[1]];
         let var = [
-            (moments.sxx / moments.s - shift[0].powi(2)).max(0.25),
-            (moments.syy / moments.s - shift[1].powi(2)).max(0.25),
+            (moments.sxx / moments.s - shift[0].powi(2)).max(MIN_MOMENT_VARIANCE_PX2),
+            (moments.syy / moments.s - shift[1].powi(2)).max(MIN_MOMENT_VARIANCE_PX2),
         ];
-        half = var.map(|v| WINDOW_RADII * (2.0 * v.sqrt()).max(floor));
+        half = var.map(|v| MOMENT_WINDOW_RADII * (2.0 * v.sqrt()).max(floor));
         if shift[0].hypot(shift[1]) < SETTLED_PX {
             break;
         }

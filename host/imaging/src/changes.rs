@@ -12,16 +12,10 @@
 
 use super::beams::{Beam, find_changed, find_faint_beams};
 use super::cells::CellSums;
-use super::picture::Picture;
-
-/// Pixels brighter than this many noise deviations in both pictures set the gain ...
-const GAIN_NOISES: f32 = 10.0;
-
-/// ... when there are at least this many of them.
-const GAIN_MIN_PIXELS: usize = 400;
-
-/// Every this-many-th pixel is sampled for the gain.
-const GAIN_STRIDE: usize = 3;
+use super::picture::{MAD_TO_SIGMA, Picture};
+use super::tuning::{
+    GAIN_MIN_PIXELS, GAIN_NOISES, GAIN_STRIDE, LEVEL_CELL, LEVEL_OUTLIER, SIDE_BLOCK, SIDE_NOISES,
+};
 
 /// What moved between two pictures.
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -175,13 +169,6 @@ impl Shifted {
     }
 }
 
-/// Side of the cells whose mean changes the level of a difference is fitted to, px.
-const LEVEL_CELL: usize = 64;
-
-/// A cell whose mean change lies this many robust deviations off the fitted level holds
-/// a change of its own.
-const LEVEL_OUTLIER: f64 = 3.0;
-
 /// A frames' difference without the plane its cells lie on: each frame's background is
 /// measured on its own, and where black clips heavy noise two frames' levels (and slopes)
 /// differ by about a gray level, a change spread over the whole frame that an average as
@@ -231,7 +218,7 @@ fn without_level(difference: &[f32], w: usize, h: usize) -> Vec<f32> {
             .map(|(c, _)| residual(c))
             .collect();
         let mid = kept.len() / 2;
-        let spread = 1.4826 * *kept.select_nth_unstable_by(mid, f64::total_cmp).1;
+        let spread = MAD_TO_SIGMA * *kept.select_nth_unstable_by(mid, f64::total_cmp).1;
         let next: Vec<bool> = cells
             .iter()
             .map(|c| residual(c) <= LEVEL_OUTLIER * spread)
@@ -249,12 +236,6 @@ fn without_level(difference: &[f32], w: usize, h: usize) -> Vec<f32> {
     }
     difference
 }
-
-/// Side of the blocks that decide which sign of change a place shows.
-const SIDE_BLOCK: usize = 8;
-
-/// A block whose mean change clearly has the other sign holds the opposite blob.
-const SIDE_NOISES: f64 = 3.0;
 
 /// The difference times `sign`, with the blocks (and their neighbours) whose change clearly
 /// has the opposite sign set to zero: a window measuring where light appeared must not sum

@@ -3,23 +3,18 @@
 //! spot inside its wide window) lie below that level and pull nothing; a saturated core's
 //! flat top is symmetric, so its centre holds.
 
+use super::tuning::{CORE_PASSES, CORE_WINDOW_RADII};
 use super::{Beam, Picture};
-
-/// Recentring passes: the core window follows the core's own centroid.
-const PASSES: usize = 3;
-
-/// Half the side of the window searched, in beam radii.
-const WINDOW_RADII: f64 = 1.5;
 
 /// The centroid of `beam`'s light above `share` of its peak, weighted by the light above
 /// that level; `None` when nothing there is above it.
 pub fn core_centre(picture: &Picture, beam: &Beam, share: f64) -> Option<[f64; 2]> {
     let (w, h) = (picture.width(), picture.height());
     let level = (share * beam.peak) as f32;
-    let half = WINDOW_RADII * beam.size().max(1.0);
+    let half = CORE_WINDOW_RADII * beam.size().max(1.0);
     let light = picture.light();
     let mut centre = beam.centre;
-    for _ in 0..PASSES {
+    for _ in 0..CORE_PASSES {
         let span = |c: f64, side: usize| window(c, half, side);
         let (mut s, mut sx, mut sy) = (0.0f64, 0.0f64, 0.0f64);
         for y in span(centre[1], h) {

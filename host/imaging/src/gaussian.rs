@@ -4,6 +4,7 @@
 //! visible part alone, so a spot cut by the image border still yields its true centre,
 //! and its misfit tells a single spot from two merged ones or interference fringes.
 
+use super::tuning::MIN_GAUSSIAN_PIXELS;
 use nalgebra::{Matrix4, Vector4};
 
 /// A round Gaussian fitted to a region.
@@ -64,7 +65,7 @@ impl GaussianFitter {
     /// too few pixels or when the pixels do not fall off like a spot (no negative
     /// curvature).
     pub fn finish(&self, noise: f64) -> Option<GaussianFit> {
-        if self.count < 16 {
+        if self.count < MIN_GAUSSIAN_PIXELS {
             return None;
         }
         let solution = self.normal.cholesky()?.solve(&self.rhs);

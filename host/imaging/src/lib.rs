@@ -20,6 +20,7 @@ mod register;
 pub mod synthetic;
 #[cfg(test)]
 mod tests;
+mod tuning;
 
 pub use backdrop::Backdrop;
 pub use beams::{Beam, find_beams};

@@ -9,12 +9,7 @@
 //! hardly matters).
 
 use super::cells::CellSums;
-
-/// Side of the map's cells, px.
-const CELL: usize = 8;
-
-/// A cell's level is the mean over this many cells either side of it too.
-const LEVEL_REACH: usize = 1;
+use super::tuning::{LEVEL_REACH, NOISE_CELL};
 
 /// The standard normal density and cumulative distribution at `t`.
 fn normal(t: f64) -> (f64, f64) {
@@ -64,7 +59,7 @@ pub struct NoiseMap {
 impl NoiseMap {
     /// The same scatter `noise` everywhere on a `width` x `height` frame.
     pub(crate) fn uniform(width: usize, height: usize, noise: f64) -> Self {
-        let (columns, rows) = (width.div_ceil(CELL), height.div_ceil(CELL));
+        let (columns, rows) = (width.div_ceil(NOISE_CELL), height.div_ceil(NOISE_CELL));
         Self {
             columns,
             rows,
@@ -89,7 +84,7 @@ impl NoiseMap {
             rows,
             sums,
             counts,
-        } = CellSums::new(raw, width, height, CELL);
+        } = CellSums::new(raw, width, height, NOISE_CELL);
         let floor = noise * clipped_normal_spread(0.0);
         let mut spread = Vec::with_capacity(columns * rows);
         for cy in 0..rows {
@@ -116,8 +111,8 @@ impl NoiseMap {
     /// The scatter of pixel (`x`, `y`), gray levels.
     pub fn at(&self, x: usize, y: usize) -> f32 {
         let (cx, cy) = (
-            (x / CELL).min(self.columns - 1),
-            (y / CELL).min(self.rows - 1),
+            (x / NOISE_CELL).min(self.columns - 1),
+            (y / NOISE_CELL).min(self.rows - 1),
         );
         self.spread[cy * self.columns + cx]
     }

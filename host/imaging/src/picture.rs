@@ -19,65 +19,13 @@
 use optalign_optics::Frame;
 
 use super::noise::{NoiseMap, clipped_normal_mean};
-
-/// Cells per short image side for the background fit (at least 16 px each).
-const CELLS_PER_SIDE: usize = 16;
-
-/// A cell whose median is this many robust deviations from the plane holds light.
-const CELL_OUTLIER: f64 = 3.0;
-
-/// A second background fit starts from this share of the cells, the darkest ...
-const DARKEST_START_SHARE: f64 = 0.25;
-
-/// ... rejects and readmits cells for at most this many rounds ...
-const FIT_ROUNDS: usize = 20;
-
-/// ... and is the background when it lies this many gray levels below the fit from all
-/// cells at the image centre.
-const LIFTED_LEVELS: f64 = 1.0;
-
-/// The cells' scatter about the background surface is structure (a misfit) only when it
-/// exceeds their noise this many times; below, it is the noise's own scatter.
-const MISFIT_SIGNIFICANCE: f64 = 1.5;
-
-/// A quadratic background replaces the plane when the kept cells' scatter about it is at
-/// most this share of their scatter about the plane (beyond their noise): three more terms
-/// must explain most of what the plane leaves, not a little of it.
-const QUADRATIC_GAIN: f64 = 0.5;
-
-/// Share of the image height at the top and at the bottom where column streaks are read.
-const BAND_SHARE: f64 = 0.08;
-
-/// A column offset smaller than this many standard errors of its estimate is noise.
-const STREAK_SIGNIFICANCE: f64 = 5.0;
-
-/// Columns averaged for a faint, wide streak.
-const STREAK_COLUMNS: usize = 9;
-
-/// A hot pixel exceeds the background by this many noise deviations ...
-const HOT_NOISES: f64 = 6.0;
-
-/// ... and all but one of its eight neighbours by this factor.
-const HOT_RATIO: f32 = 2.5;
-
-/// The floor of the noise estimate, in the frame's quantisation steps (quantisation alone
-/// gives 0.29).
-const MIN_NOISE_STEPS: f64 = 0.3;
-
-/// Histogram bins at most: a 16-bit frame's are 16 counts wide (1/16 gray level), finer
-/// than any camera's read noise.
-const MAX_BINS: u32 = 4096;
-/// Above this share of background pixels at 0, the noise is read from the spread above black
-/// instead of from neighbour differences (which clipping shrinks).
-const CLIPPED_DARK_SHARE: f64 = 0.02;
-/// Above this share of a cell's pixels at 0, its level is read from the values above black
-/// (below it, the mean of the clipped values is within 0.05 σ of the level).
-const CELL_CLIPPED_SHARE: f64 = 0.1;
-/// Below this share of cells with a level (the rest read nearly all black), the background
-/// is taken as black wherever it reads so.
-const MIN_KNOWN_SHARE: f64 = 0.3;
-/// How far above the share of clipped pixels a quantile used for the noise must lie.
-const CLIP_MARGIN: f64 = 0.05;
+use super::tuning::{
+    BAND_SHARE, CELL_CLIPPED_SHARE, CELL_OUTLIER, CELLS_PER_SIDE, CLIP_MARGIN, CLIPPED_DARK_SHARE,
+    DARKEST_START_SHARE, FIT_ROUNDS, HISTOGRAM_OUTLIER_SPREADS, HOT_NOISES, HOT_RATIO,
+    LIFTED_LEVELS, MAX_BINS, MIN_KNOWN_SHARE, MIN_NOISE_STEPS, MIN_QUADRATIC_CELLS,
+    MISFIT_SIGNIFICANCE, PLANE_ROUNDS, QUADRATIC_GAIN, SATURATION_PLATEAU_PIXELS, STREAK_COLUMNS,
+    STREAK_SIGNIFICANCE, TRIMMED_KEEP_SHARE,
+};
 
 /// A frame's light above its background.
 #[derive(Clone, Debug)]
@@ -231,7 +179,7 @@ pub fn saturation_value(raw: &[u16], full_scale: u16) -> Option<u16> {
     let plateau = raw.iter().filter(|&&p| p == top).count();
     let below = raw.iter().copied().filter(|&p| p < top).max();
     let below_count = below.map_or(0, |b| raw.iter().filter(|&&p| p == b).count());
-    let piled_up = plateau >= 8 && plateau > below_count;
+    let piled_up = plateau >= SATURATION_PLATEAU_PIXELS && plateau > below_count;
     (top == full_scale || piled_up).then_some(top)
 }
 
@@ -375,7 +323,7 @@ impl Plane {
         // lies clearly lower is the background then.
         let known: Vec<bool> = cells.iter().map(|c| c.level.is_some()).collect();
         let flat = Surface::new(width, height, 3);
-        let (mut plane, mut keep) = robust_surface(&cells, flat, known, 5);
+        let (mut plane, mut keep) = robust_surface(&cells, flat, known, PLANE_ROUNDS);
         let darkest = quantile_of(
             cells.iter().filter_map(|c| c.level).collect(),
             DARKEST_START_SHARE,
@@ -434,7 +382,8 @@ impl Plane {
             FIT_ROUNDS,
         );
         let bowl_misfit = beyond_noise(scatter(&cells, &bowl, &bowl_keep));
-        if bowl_keep.iter().filter(|k| **k).count() >= 12 && bowl_misfit <= QUADRATIC_GAIN * misfit
+        if bowl_keep.iter().filter(|k| **k).count() >= MIN_QUADRATIC_CELLS
+            && bowl_misfit <= QUADRATIC_GAIN * misfit
         {
             (plane, misfit) = (bowl, bowl_misfit);
         }
@@ -546,10 +495,10 @@ impl Histogram {
             * self.depth.step();
         // Half the pixels of a dark level near black read 0, which shrinks the MAD far
         // below the noise: the spread above black keeps the cut out of the noise's tail.
-        let spread = (1.4826 * mad)
+        let spread = (MAD_TO_SIGMA * mad)
             .max(self.above_black().map_or(0.0, |(_, noise)| noise))
             .max(1.0);
-        let limit = median + 8.0 * spread;
+        let limit = median + HISTOGRAM_OUTLIER_SPREADS * spread;
         let (sum, n) = self
             .counts
             .iter()
@@ -585,7 +534,7 @@ impl Histogram {
         if self.total == 0 {
             return 0.0;
         }
-        let mut keep = (f64::from(self.total) * 0.98).ceil() as u32;
+        let mut keep = (f64::from(self.total) * TRIMMED_KEEP_SHARE).ceil() as u32;
         let (mut sum, mut n) = (0.0, 0.0);
         for (bin, &count) in self.counts.iter().enumerate() {
             let taken = count.min(keep);
@@ -599,6 +548,9 @@ impl Histogram {
         sum / n.max(1.0) * std::f64::consts::PI.sqrt() / 2.0 / 0.953
     }
 }
+
+/// The σ of a normal distribution is its median absolute deviation times this.
+pub(super) const MAD_TO_SIGMA: f64 = 1.4826;
 
 /// The median of the values, or `None` when there are none.
 pub(super) fn median(values: Vec<f64>) -> Option<f64> {
@@ -626,7 +578,7 @@ fn scatter(cells: &[Cell], surface: &Surface, keep: &[bool]) -> f64 {
                 .map(|l| (l - surface.at(c.centre[0], c.centre[1])).abs())
         })
         .collect();
-    1.4826 * median(residuals).unwrap_or(0.0)
+    MAD_TO_SIGMA * median(residuals).unwrap_or(0.0)
 }
 
 /// A surface with `start`'s terms fitted to the cells from those in `keep`, rejecting and
@@ -655,7 +607,7 @@ fn robust_surface(
             .filter(|(_, k)| **k)
             .map(|(r, _)| r.abs())
             .collect();
-        let spread = 1.4826 * median(kept).unwrap_or(0.0);
+        let spread = MAD_TO_SIGMA * median(kept).unwrap_or(0.0);
         let limit = CELL_OUTLIER * spread.max(0.5);
         let next: Vec<bool> = residuals.iter().map(|r| r.abs() <= limit).collect();
         if next == keep || next.iter().filter(|k| **k).count() < surface.terms {

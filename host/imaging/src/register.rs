@@ -8,13 +8,8 @@
 //! as none.
 
 use super::core::core_centre;
+use super::tuning::{SHIFT_STRIDE, SHIFT_WINDOW_RADII};
 use super::{Beam, Picture};
-
-/// The window compared spans this many beam radii either side of the core centre.
-const WINDOW_RADII: f64 = 1.5;
-
-/// Every this-many-th pixel of the window (per axis) is compared.
-const STRIDE: usize = 2;
 
 /// How far the scene around `beam` of `before` (its core: the light above `share` of its
 /// peak) moved in `after`, whole px (x right, y down); zero when it did not move or its
@@ -35,7 +30,7 @@ pub fn scene_shift(before: &Picture, after: &Picture, beam: &Beam, share: f64) -
     if shift == still {
         return still;
     }
-    let window = WINDOW_RADII * beam.size().max(1.0);
+    let window = SHIFT_WINDOW_RADII * beam.size().max(1.0);
     match misfits(before, after, from, window, [shift, still]) {
         Some([moved, stayed]) if moved < stayed => shift,
         _ => still,
@@ -57,7 +52,7 @@ fn misfits(
     let span = |c: f64, side: usize| {
         let lo = (c - half).floor().max(0.0) as usize;
         let hi = ((c + half).ceil().max(0.0) as usize).min(side);
-        (lo..hi).step_by(STRIDE)
+        (lo..hi).step_by(SHIFT_STRIDE)
     };
     let light = after.light();
     let mut sums = [[0.0f64; 3]; 2];

@@ -1,0 +1,219 @@
+//! Every threshold and size the detector uses, in one place, each with its unit and the
+//! reason for its value. Units: px (pixels), gray levels (of an 8-bit frame), noises (read-noise
+//! deviations of the quantity compared), shares (fractions of the named whole).
+
+// A frame's background, read noise, streaks and hot pixels (`picture`)
+
+/// Cells per short image side for the background fit (at least 16 px each).
+pub(crate) const CELLS_PER_SIDE: usize = 16;
+
+/// A cell whose median is this many robust deviations from the plane holds light.
+pub(crate) const CELL_OUTLIER: f64 = 3.0;
+
+/// A second background fit starts from this share of the cells, the darkest ...
+pub(crate) const DARKEST_START_SHARE: f64 = 0.25;
+
+/// ... rejects and readmits cells for at most this many rounds ...
+pub(crate) const FIT_ROUNDS: usize = 20;
+
+/// ... and is the background when it lies this many gray levels below the fit from all
+/// cells at the image centre.
+pub(crate) const LIFTED_LEVELS: f64 = 1.0;
+
+/// The cells' scatter about the background surface is structure (a misfit) only when it
+/// exceeds their noise this many times; below, it is the noise's own scatter.
+pub(crate) const MISFIT_SIGNIFICANCE: f64 = 1.5;
+
+/// A quadratic background replaces the plane when the kept cells' scatter about it is at
+/// most this share of their scatter about the plane (beyond their noise): three more terms
+/// must explain most of what the plane leaves, not a little of it.
+pub(crate) const QUADRATIC_GAIN: f64 = 0.5;
+
+/// Share of the image height at the top and at the bottom where column streaks are read.
+pub(crate) const BAND_SHARE: f64 = 0.08;
+
+/// A column offset smaller than this many standard errors of its estimate is noise.
+pub(crate) const STREAK_SIGNIFICANCE: f64 = 5.0;
+
+/// Columns averaged for a faint, wide streak.
+pub(crate) const STREAK_COLUMNS: usize = 9;
+
+/// A hot pixel exceeds the background by this many noise deviations ...
+pub(crate) const HOT_NOISES: f64 = 6.0;
+
+/// ... and all but one of its eight neighbours by this factor.
+pub(crate) const HOT_RATIO: f32 = 2.5;
+
+/// The floor of the noise estimate, in the frame's quantisation steps (quantisation alone
+/// gives 0.29).
+pub(crate) const MIN_NOISE_STEPS: f64 = 0.3;
+
+/// Histogram bins at most: a 16-bit frame's are 16 counts wide (1/16 gray level), finer
+/// than any camera's read noise.
+pub(crate) const MAX_BINS: u32 = 4096;
+
+/// Above this share of background pixels at 0, the noise is read from the spread above black
+/// instead of from neighbour differences (which clipping shrinks).
+pub(crate) const CLIPPED_DARK_SHARE: f64 = 0.02;
+
+/// Above this share of a cell's pixels at 0, its level is read from the values above black
+/// (below it, the mean of the clipped values is within 0.05 σ of the level).
+pub(crate) const CELL_CLIPPED_SHARE: f64 = 0.1;
+
+/// Below this share of cells with a level (the rest read nearly all black), the background
+/// is taken as black wherever it reads so.
+pub(crate) const MIN_KNOWN_SHARE: f64 = 0.3;
+
+/// How far above the share of clipped pixels a quantile used for the noise must lie.
+pub(crate) const CLIP_MARGIN: f64 = 0.05;
+
+/// A value piled up on at least this many pixels, more than on the value below it, is the
+/// sensor's saturation level even below the file's full scale.
+pub(crate) const SATURATION_PLATEAU_PIXELS: usize = 8;
+
+/// Rounds of rejecting and readmitting cells in the plane fit.
+pub(crate) const PLANE_ROUNDS: usize = 5;
+
+/// A quadratic background (six terms) needs at least this many kept cells: two per term.
+pub(crate) const MIN_QUADRATIC_CELLS: usize = 12;
+
+/// Histogram values this many robust deviations above the median are light, not background.
+pub(crate) const HISTOGRAM_OUTLIER_SPREADS: f64 = 8.0;
+
+/// The trimmed mean of a histogram keeps this share of its values (the brightest 2 % are
+/// light or hot pixels).
+pub(crate) const TRIMMED_KEEP_SHARE: f64 = 0.98;
+
+// The noise map (`noise`)
+
+/// Side of the map's cells, px.
+pub(crate) const NOISE_CELL: usize = 8;
+
+/// A cell's level is the mean over this many cells either side of it too.
+pub(crate) const LEVEL_REACH: usize = 1;
+
+// Finding and measuring beams (`beams`)
+
+/// Pixels per side of the blocks the picture is reduced to for finding regions.
+pub(crate) const BLOCK: usize = 4;
+
+/// A block (averaged with its neighbours) holds light when it exceeds this many noise
+/// deviations of such an average.
+pub(crate) const THRESHOLD_NOISES: f64 = 4.5;
+
+/// Regions whose light is below this share of the strongest region's are dropped.
+pub(crate) const MIN_SHARE: f64 = 0.002;
+
+/// A region's light must exceed the noise summed over its pixels this many times.
+pub(crate) const MIN_SIGNIFICANCE: f64 = 8.0;
+
+/// Blocks above this share of a region's peak are its core.
+pub(crate) const CORE_SHARE: f32 = 0.2;
+
+/// A core found by [`Grid::split`] counts only when its peak stands this many noise
+/// deviations of a smoothed block above the core level: in heavy noise the level's contour
+/// breaks into islands that are one beam.
+pub(crate) const CORE_PROMINENCE_NOISES: f32 = 5.0;
+
+/// Two regions are one beam when their cores are nearer than this share of the distance
+/// between their centres (a dark node line or fringe inside one beam is narrow; the gap
+/// between two beams is wide)...
+pub(crate) const JOIN_GAP_SHARE: f64 = 0.35;
+
+/// ... and the weaker peak is at least this share of the stronger ...
+pub(crate) const JOIN_PEAK_SHARE: f32 = 0.2;
+
+/// ... and the light between them falls below this share of the weaker peak (beyond the
+/// noise): inside one beam the parts are parted by a dark line (a mode's node, a dark
+/// fringe, a speckle grain's edge), while between two beams whose tails overlap the tails
+/// add up: two Gaussians of one size keep more than 4 % of their peak between them until
+/// they are 2.8 radii apart, where their cores lie too far apart to be joined anyway.
+pub(crate) const JOIN_VALLEY_SHARE: f32 = 0.04;
+
+/// The valley may exceed that share by this many deviations of a block's mean.
+pub(crate) const JOIN_VALLEY_NOISES: f32 = 3.0;
+
+/// In the measuring window, blocks whose smoothed light lies within this many background
+/// misfits of the background count as none: the background is known no better there, and
+/// over a window of thousands of pixels such residue would outweigh the beam's wings.
+pub(crate) const MOMENT_FLOOR_MISFITS: f32 = 3.0;
+
+/// Half the side of the measuring window, in second-moment radii (1/e² radii of a Gaussian).
+pub(crate) const MOMENT_WINDOW_RADII: f64 = 2.5;
+
+/// The window iteration stops when the centre moves less than this, px.
+pub(crate) const SETTLED_PX: f64 = 0.01;
+
+/// Mean neighbour difference beyond the noise, over the mean light, above which a beam is
+/// speckle rather than a spot.
+pub(crate) const MAX_SPOT_ROUGHNESS: f64 = 0.15;
+
+/// A beam still this bright at the image border (share of its peak) is cut by it.
+pub(crate) const CLIPPED_SHARE: f64 = 0.05;
+
+/// This many saturated pixels make a saturated beam.
+pub(crate) const SATURATED_PIXELS: usize = 4;
+
+/// The spot fit uses blocks brighter than this share of the peak and this many block noise
+/// deviations: the faint rim carries mostly noise.
+pub(crate) const FIT_FLOOR_SHARE: f64 = 0.08;
+
+pub(crate) const FIT_FLOOR_NOISES: f64 = 3.0;
+
+/// A fitted radius beyond this multiple of the measured radius is a flat clump of noise.
+pub(crate) const MAX_FIT_RADIUS_SHARE: f64 = 3.0;
+
+/// A region needs at least this many bright blocks (48 px²): fewer are a noise peak.
+pub(crate) const MIN_REGION_BLOCKS: usize = 3;
+
+/// The floor of a beam's second moment per axis, px² (a quarter pixel²: a pixel's own
+/// width), so a one-pixel spot keeps a window.
+pub(crate) const MIN_MOMENT_VARIANCE_PX2: f64 = 0.25;
+
+/// A Gaussian fit needs at least this many points (four unknowns, four times over).
+pub(crate) const MIN_GAUSSIAN_PIXELS: usize = 16;
+
+// A beam's bright core (`core`)
+
+/// Recentring passes: the core window follows the core's own centroid.
+pub(crate) const CORE_PASSES: usize = 3;
+
+/// Half the side of the window searched, in beam radii.
+pub(crate) const CORE_WINDOW_RADII: f64 = 1.5;
+
+// What changed between two frames (`changes`)
+
+/// Pixels brighter than this many noise deviations in both pictures set the gain ...
+pub(crate) const GAIN_NOISES: f32 = 10.0;
+
+/// ... when there are at least this many of them.
+pub(crate) const GAIN_MIN_PIXELS: usize = 400;
+
+/// Every this-many-th pixel is sampled for the gain.
+pub(crate) const GAIN_STRIDE: usize = 3;
+
+/// Side of the cells whose mean changes the level of a difference is fitted to, px.
+pub(crate) const LEVEL_CELL: usize = 64;
+
+/// A cell whose mean change lies this many robust deviations off the fitted level holds
+/// a change of its own.
+pub(crate) const LEVEL_OUTLIER: f64 = 3.0;
+
+/// Side of the blocks that decide which sign of change a place shows.
+pub(crate) const SIDE_BLOCK: usize = 8;
+
+/// A block whose mean change clearly has the other sign holds the opposite blob.
+pub(crate) const SIDE_NOISES: f64 = 3.0;
+
+// The stationary scene's shift (`register`)
+
+/// The window compared spans this many beam radii either side of the core centre.
+pub(crate) const SHIFT_WINDOW_RADII: f64 = 1.5;
+
+/// Every this-many-th pixel of the window (per axis) is compared.
+pub(crate) const SHIFT_STRIDE: usize = 2;
+
+// A place's backdrop (`backdrop`)
+
+/// Side of the cells, px, over which the darker of the two frames is chosen.
+pub(crate) const BACKDROP_CELL: usize = 8;
