@@ -16,9 +16,7 @@ use std::time::{Duration, Instant};
 use optalign::link::{Client, ClientOptions};
 use optalign::peer::{PeerOptions, SimPeer, TimeMode};
 use optalign_firmware::sim::SimRng;
-use optalign_protocol::{
-    AxisConfig, AxisValue, Command, ErrorCode, MoveOutcome, PeerMessage, Reply,
-};
+use optalign_protocol::{AxisConfig, AxisValue, Command, ErrorCode, MoveOutcome};
 
 const KEY: &str = "soak-key";
 const AXES: u8 = 3;
@@ -123,23 +121,12 @@ async fn stopper(client: Client, latencies: Arc<Latencies>, done: Arc<AtomicBool
 }
 
 async fn fast_axes(peer: &SimPeer) {
-    for axis in 0..AXES {
-        let config = match peer.serial_request(Command::GetConfig { axis }).as_slice() {
-            [
-                PeerMessage::Reply {
-                    reply: Reply::Config(config),
-                    ..
-                },
-            ] => *config,
-            other => panic!("GetConfig answered {other:?}"),
-        };
-        let fast = AxisConfig {
-            max_speed: 5_000,
-            acceleration: 50_000,
-            ..config
-        };
-        peer.serial_request(Command::SetConfig { axis, config: fast });
-    }
+    let fast = |config| AxisConfig {
+        max_speed: 5_000,
+        acceleration: 50_000,
+        ..config
+    };
+    peer.reconfigure_over_serial(fast).expect("fast axes");
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

@@ -16,7 +16,7 @@ use std::time::Duration;
 
 use optalign_firmware::admission::{self, Admission, Admissions, Standing, Ticket};
 use optalign_firmware::{Connection, Deadlines, LinkKind, Port, Received, Session};
-use optalign_protocol::{Command, FrameError, MAX_FRAME, PeerMessage, Request};
+use optalign_protocol::{AxisConfig, Command, FrameError, MAX_FRAME, PeerMessage, Reply, Request};
 use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
 use tokio::net::TcpListener;
 use tokio::sync::{Notify, broadcast};
@@ -99,6 +99,42 @@ impl SimPeer {
         };
         self.wake.notify_one();
         replies
+    }
+
+    /// Changes every axis's configuration over the serial link (as a user at the bench would
+    /// before a test): reads each axis's configuration and writes back `change` of it.
+    /// An axis whose configuration cannot be read or written is named in the error.
+    pub fn reconfigure_over_serial(
+        &self,
+        change: impl Fn(AxisConfig) -> AxisConfig,
+    ) -> Result<(), String> {
+        let axes = self.core().shaft_positions().len() as u8;
+        for axis in 0..axes {
+            let config = match self.serial_request(Command::GetConfig { axis }).as_slice() {
+                [
+                    PeerMessage::Reply {
+                        reply: Reply::Config(config),
+                        ..
+                    },
+                ] => *config,
+                other => return Err(format!("axis {axis}: GetConfig answered {other:?}")),
+            };
+            match self
+                .serial_request(Command::SetConfig {
+                    axis,
+                    config: change(config),
+                })
+                .as_slice()
+            {
+                [
+                    PeerMessage::Reply {
+                        reply: Reply::Ok, ..
+                    },
+                ] => {}
+                other => return Err(format!("axis {axis}: SetConfig answered {other:?}")),
+            }
+        }
+        Ok(())
     }
 
     /// Network connections open now (in slots and the lobby).

@@ -24,8 +24,7 @@ use optalign::link::{Client, ClientError, ClientOptions};
 use optalign::peer::{PeerOptions, SimPeer, TimeMode};
 use optalign_firmware::sim::SimRng;
 use optalign_protocol::{
-    AxisConfig, AxisValue, BacklashMode, Command, ErrorCode, Faults, MoveOutcome, PeerMessage,
-    Reply, RequestId,
+    AxisConfig, AxisValue, BacklashMode, Command, ErrorCode, Faults, MoveOutcome, RequestId,
 };
 
 const KEY: &str = "kill-campaign-key";
@@ -95,25 +94,15 @@ impl Controller {
     /// On the serial link (physical access): fast axes without backlash compensation, so
     /// moves are short and every shaft follows its motor exactly.
     fn configure(&self) {
-        let peer = self.peer();
-        for axis in 0..AXES {
-            let config = match peer.serial_request(Command::GetConfig { axis }).as_slice() {
-                [
-                    PeerMessage::Reply {
-                        reply: Reply::Config(config),
-                        ..
-                    },
-                ] => *config,
-                other => panic!("GetConfig answered {other:?}"),
-            };
-            let fast = AxisConfig {
-                max_speed: 20_000,
-                acceleration: 400_000,
-                backlash_mode: BacklashMode::Off,
-                ..config
-            };
-            peer.serial_request(Command::SetConfig { axis, config: fast });
-        }
+        let fast = |config| AxisConfig {
+            max_speed: 20_000,
+            acceleration: 400_000,
+            backlash_mode: BacklashMode::Off,
+            ..config
+        };
+        self.peer()
+            .reconfigure_over_serial(fast)
+            .expect("fast axes");
     }
 
     /// Stops the move in progress from the serial link.
