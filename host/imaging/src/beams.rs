@@ -3,9 +3,10 @@
 //! for each beam its intensity centroid and second moments measured the ISO 11146 way: in a
 //! window of 2.5 second-moment radii around the centroid, iterated until it settles, over
 //! the pixels nearer this beam than any other. Each beam says how sure its centre is (the
-//! read noise propagated through the centroid), whether the border cuts it, whether it is
-//! saturated, and whether it is a compact spot or a speckle cloud; a beam cut by the border
-//! also carries a Gaussian fit, whose centre holds for a Gaussian-like beam.
+//! read noise propagated through the centroid, and the scatter of centroids of interleaved
+//! samples of its light, which shows texture and speckle), whether the border cuts it,
+//! whether it is saturated, and whether it is a compact spot or a speckle cloud; a beam cut
+//! by the border also carries a Gaussian fit, whose centre holds for a Gaussian-like beam.
 //! [`find_faint_beams`] looks for faint broad beams on wider averages, against the noise
 //! the pixels carry place by place, and measures them on the averaged blocks.
 
@@ -17,7 +18,8 @@ use super::tuning::{
     BLOCK, CLIPPED_SHARE, CORE_PROMINENCE_NOISES, CORE_SHARE, FIT_FLOOR_NOISES, FIT_FLOOR_SHARE,
     JOIN_GAP_SHARE, JOIN_PEAK_SHARE, JOIN_VALLEY_NOISES, JOIN_VALLEY_SHARE, MAX_FIT_RADIUS_SHARE,
     MAX_SPOT_ROUGHNESS, MIN_MOMENT_VARIANCE_PX2, MIN_REGION_BLOCKS, MIN_SHARE, MIN_SIGNIFICANCE,
-    MOMENT_FLOOR_MISFITS, MOMENT_WINDOW_RADII, SATURATED_PIXELS, SETTLED_PX, THRESHOLD_NOISES,
+    MOMENT_FLOOR_MISFITS, MOMENT_WINDOW_RADII, SATURATED_PIXELS, SETTLED_PX,
+    SPLIT_CELLS_PER_RADIUS, SPLIT_CLASSES, THRESHOLD_NOISES,
 };
 
 /// A beam found in a picture.
@@ -29,8 +31,10 @@ pub struct Beam {
     /// Standard uncertainty of the centre, px: the root of the trace of `covariance`.
     pub uncertainty: f64,
     /// Covariance of the centre, px² (`[[xx, xy], [xy, yy]]`): every pixel's read noise and
-    /// the background's misfit, propagated through the centroid. It does not hold what the
-    /// beam's own shape, texture or saturation make uncertain.
+    /// the background's misfit, propagated through the centroid, widened by what the
+    /// scatter of interleaved samples of the beam's light shows beyond them (texture,
+    /// fringes, speckle finer than about a quarter of the beam's radius). Structure on the
+    /// beam's own scale is shape, which no single frame tells from a texture.
     pub covariance: [[f64; 2]; 2],
     /// Second-moment radii along the principal axes (major, minor), px: the 1/e² radii
     /// of a Gaussian with the same moments.
@@ -617,6 +621,39 @@ struct Moments {
     gxy: f64,
 }
 
+/// The pixels beam `id` owns in the window `centre ± half` (above the moment floor), as
+/// runs along rows: `visit(y, x_from, x_to)` for each.
+fn owned_runs(
+    picture: &Picture,
+    grid: &Grid,
+    owner: &[u32],
+    id: u32,
+    centre: [f64; 2],
+    half: [f64; 2],
+    mut visit: impl FnMut(usize, usize, usize),
+) {
+    let (w, h) = (picture.width(), picture.height());
+    let x0 = (centre[0] - half[0]).floor().max(0.0) as usize;
+    let x1 = ((centre[0] + half[0]).ceil().max(0.0) as usize).min(w);
+    let y0 = (centre[1] - half[1]).floor().max(0.0) as usize;
+    let y1 = ((centre[1] + half[1]).ceil().max(0.0) as usize).min(h);
+    let floor = MOMENT_FLOOR_MISFITS * picture.background_misfit() as f32;
+    for y in y0..y1 {
+        let block_row = &owner[(y / BLOCK) * grid.bw..(y / BLOCK + 1) * grid.bw];
+        let smooth_row = &grid.smooth[(y / BLOCK) * grid.bw..(y / BLOCK + 1) * grid.bw];
+        let mut x = x0;
+        while x < x1 {
+            let block = x / BLOCK;
+            let end = ((block + 1) * BLOCK).min(x1);
+            let above_floor = floor <= 0.0 || smooth_row[block] > floor;
+            if block_row[block] == id && above_floor {
+                visit(y, x, end);
+            }
+            x = end;
+        }
+    }
+}
+
 /// The first and second moments of beam `id` over the pixels it owns in the window
 /// `centre ± half`.
 fn window_moments(
@@ -627,59 +664,98 @@ fn window_moments(
     centre: [f64; 2],
     half: [f64; 2],
 ) -> Moments {
-    let (w, h) = (picture.width(), picture.height());
-    let x0 = (centre[0] - half[0]).floor().max(0.0) as usize;
-    let x1 = ((centre[0] + half[0]).ceil().max(0.0) as usize).min(w);
-    let y0 = (centre[1] - half[1]).floor().max(0.0) as usize;
-    let y1 = ((centre[1] + half[1]).ceil().max(0.0) as usize).min(h);
+    let w = picture.width();
     let light = picture.light();
-    let floor = MOMENT_FLOOR_MISFITS * picture.background_misfit() as f32;
     let mut m = Moments::default();
-    if x1 <= x0 {
-        return m;
-    }
-    // Offsets of the window's columns from the centre, once.
-    let dx: Vec<f32> = (x0..x1)
-        .map(|x| (x as f64 + 0.5 - centre[0]) as f32)
-        .collect();
-    for y in y0..y1 {
-        let block_row = &owner[(y / BLOCK) * grid.bw..(y / BLOCK + 1) * grid.bw];
-        let smooth_row = &grid.smooth[(y / BLOCK) * grid.bw..(y / BLOCK + 1) * grid.bw];
-        let row = &light[y * w..(y + 1) * w];
-        // Per row in f32 (a few hundred terms), summed into the totals in f64.
-        let (mut s, mut sx, mut sxx, mut n) = (0f32, 0f32, 0f32, 0f32);
-        let (mut gx, mut gxx) = (0f32, 0f32);
-        let mut x = x0;
-        while x < x1 {
-            let block = x / BLOCK;
-            let end = ((block + 1) * BLOCK).min(x1);
-            let above_floor = floor <= 0.0 || smooth_row[block] > floor;
-            if block_row[block] == id && above_floor {
-                for (v, d) in row[x..end].iter().zip(&dx[x - x0..end - x0]) {
-                    s += v;
-                    sx += v * d;
-                    sxx += v * d * d;
-                    gx += d;
-                    gxx += d * d;
-                }
-                n += (end - x) as f32;
-            }
-            x = end;
-        }
+    // Per row in f32 (a few hundred terms), summed into the totals in f64.
+    let row_sums = |y: usize, m: &mut Moments, sums: [f32; 6]| {
+        let [s, sx, sxx, n, gx, gxx] = sums.map(f64::from);
         let py = y as f64 + 0.5 - centre[1];
-        let (s, sx, n) = (f64::from(s), f64::from(sx), f64::from(n));
         m.s += s;
         m.sx += sx;
         m.sy += s * py;
-        m.sxx += f64::from(sxx);
+        m.sxx += sxx;
         m.syy += s * py * py;
         m.sxy += sx * py;
         m.n += n;
-        m.gxx += f64::from(gxx);
+        m.gxx += gxx;
         m.gyy += n * py * py;
-        m.gxy += f64::from(gx) * py;
+        m.gxy += gx * py;
+    };
+    let mut current: Option<(usize, [f32; 6])> = None;
+    owned_runs(picture, grid, owner, id, centre, half, |y, from, to| {
+        if let Some((row, sums)) = current
+            && row != y
+        {
+            row_sums(row, &mut m, sums);
+            current = None;
+        }
+        let sums = &mut current.get_or_insert((y, [0.0; 6])).1;
+        for (x, v) in (from..to).zip(&light[y * w + from..y * w + to]) {
+            let d = (x as f64 + 0.5 - centre[0]) as f32;
+            sums[0] += v;
+            sums[1] += v * d;
+            sums[2] += v * d * d;
+            sums[4] += d;
+            sums[5] += d * d;
+        }
+        sums[3] += (to - from) as f32;
+    });
+    if let Some((row, sums)) = current {
+        row_sums(row, &mut m, sums);
     }
     m
+}
+
+/// How surely the centroid of beam `id` in the window `centre ± half` is known, from the
+/// light itself: its pixels split into nine interleaved classes of square cells `cell` px
+/// wide (a 3 x 3 pattern on the pixel grid), each class's own centroid, and their scatter. Each class samples
+/// the whole beam evenly (cells far finer than the beam: shape cancels), so the classes'
+/// centroids differ only by what is random at scales finer than a cell: read noise, and
+/// the texture, fringes or speckle the beam carries. The covariance of their mean, px²;
+/// `None` when a class holds no light.
+fn split_covariance(
+    picture: &Picture,
+    grid: &Grid,
+    owner: &[u32],
+    id: u32,
+    centre: [f64; 2],
+    half: [f64; 2],
+    cell: usize,
+) -> Option<[[f64; 2]; 2]> {
+    let w = picture.width();
+    let light = picture.light();
+    // Cells on the pixel grid, whole pixels wide: every class holds the same share of
+    // pixels in every stretch of three cells (cells of fractional width would give one
+    // class a pixel more here and there, which on a beam's steep flanks is shape).
+    let class_of = |pixel: usize| (pixel / cell) % 3;
+    let mut sums = [[0f64; 3]; SPLIT_CLASSES];
+    owned_runs(picture, grid, owner, id, centre, half, |y, from, to| {
+        let dy = y as f64 + 0.5 - centre[1];
+        let row = 3 * class_of(y);
+        for (x, &v) in (from..to).zip(&light[y * w + from..y * w + to]) {
+            let dx = x as f64 + 0.5 - centre[0];
+            let class = &mut sums[row + class_of(x)];
+            let v = f64::from(v);
+            class[0] += v;
+            class[1] += v * dx;
+            class[2] += v * dy;
+        }
+    });
+    if sums.iter().any(|[s, _, _]| *s <= 0.0) {
+        return None;
+    }
+    let centres = sums.map(|[s, sx, sy]| [sx / s, sy / s]);
+    let k = SPLIT_CLASSES as f64;
+    let mean = [0, 1].map(|a| centres.iter().map(|c| c[a]).sum::<f64>() / k);
+    let co = |a: usize, b: usize| {
+        centres
+            .iter()
+            .map(|c| (c[a] - mean[a]) * (c[b] - mean[b]))
+            .sum::<f64>()
+            / (k * (k - 1.0))
+    };
+    Some([[co(0, 0), co(0, 1)], [co(0, 1), co(1, 1)]])
 }
 
 /// Measures beam `id` (its region blocks `blocks`, `parts` regions).
@@ -702,11 +778,13 @@ fn measure(
         angle,
         signal,
         spread,
+        split,
     } = footprint;
     // cov(cx, cy) = σ² Σ (x - cx)(y - cy) / S², σ the read noise and the background's
     // misfit together (each pixel's light is known no better than its background).
     let gain = (picture.noise().hypot(picture.background_misfit()) / signal).powi(2);
-    let covariance = spread.map(|row| row.map(|g| gain * g));
+    let read = spread.map(|row| row.map(|g| gain * g));
+    let covariance = split.map_or(read, |split| with_texture(read, split));
     let uncertainty = (covariance[0][0] + covariance[1][1]).sqrt();
     let (w, h) = (picture.width(), picture.height());
     let peak = blocks
@@ -790,6 +868,7 @@ fn faint_footprint(grid: &Grid, blocks: &[usize]) -> Option<Footprint> {
         radii: [radius, radius],
         angle: 0.0,
         signal: fit.peak * std::f64::consts::PI * fit.radius.powi(2) / 2.0,
+        split: None,
         // A square window of side 2 half: (2 half)² pixels, each axis's Σ d² a third of
         // half² per pixel.
         spread: [
@@ -810,6 +889,9 @@ struct Footprint {
     /// Σ (x - cx)², Σ (x - cx)(y - cy), Σ (y - cy)² over the window's pixels, for the
     /// centre's covariance.
     spread: [[f64; 2]; 2],
+    /// The centre's covariance from the scatter of interleaved samples of its light
+    /// ([`split_covariance`]), px², where it could be measured.
+    split: Option<[[f64; 2]; 2]>,
 }
 
 /// The footprint of beam `id` (its region blocks `blocks`) from its pixels' moments in a
@@ -879,11 +961,15 @@ fn window_footprint(
         return None;
     }
     let (major, minor, angle) = principal(cxx, cyy, cxy);
+    let cell = (2.0 * minor.sqrt() / SPLIT_CELLS_PER_RADIUS)
+        .round()
+        .max(1.0) as usize;
     Some(Footprint {
         centre,
         radii: [2.0 * major.sqrt(), 2.0 * minor.sqrt()],
         angle,
         signal: m.s,
+        split: split_covariance(picture, grid, owner, id_u32, centre, half, cell),
         // About the centroid rather than the window's centre.
         spread: [
             [
@@ -896,6 +982,20 @@ fn window_footprint(
             ],
         ],
     })
+}
+
+/// The read-noise covariance `read` of a centre, widened by what the scatter of its
+/// interleaved samples (`split`, which holds the read noise too) shows beyond it: the
+/// texture, fringes or speckle on the beam. The excess is kept positive semi-definite.
+fn with_texture(read: [[f64; 2]; 2], split: [[f64; 2]; 2]) -> [[f64; 2]; 2] {
+    let xx = (split[0][0] - read[0][0]).max(0.0);
+    let yy = (split[1][1] - read[1][1]).max(0.0);
+    let limit = (xx * yy).sqrt();
+    let xy = (split[0][1] - read[0][1]).clamp(-limit, limit);
+    [
+        [read[0][0] + xx, read[0][1] + xy],
+        [read[1][0] + xy, read[1][1] + yy],
+    ]
 }
 
 /// Eigen-decomposition of a 2 x 2 covariance: (major, minor, angle of the major axis).

@@ -429,3 +429,48 @@ fn a_dim_broad_beam_moving_in_heavy_clipped_noise_is_found_and_the_halo_stays_qu
         assert!((beam.size() / 35.0 - 1.0).abs() < 0.6, "{beam:?}");
     }
 }
+
+/// The reported uncertainty of the centre of a beam made `frames` times (one scene per
+/// seed), mean over the frames, and the centres' root-mean-square distance from `truth`.
+fn reported_and_true_scatter(make: impl Fn(u64) -> Scene, truth: [f64; 2]) -> (f64, f64) {
+    let frames = 20;
+    let (mut reported, mut squares) = (0.0, 0.0);
+    for seed in 0..frames {
+        let (beam, d) = found(&make(seed), truth);
+        reported += beam.uncertainty;
+        squares += d * d;
+    }
+    (reported / frames as f64, (squares / frames as f64).sqrt())
+}
+
+#[test]
+fn a_beams_uncertainty_covers_what_read_noise_and_speckle_do_to_its_centre() {
+    let truth = [321.37, 228.81];
+    let clean = reported_and_true_scatter(|s| bench(s).gaussian(truth, 40.0, 150.0), truth);
+    assert!(
+        clean.0 > 0.7 * clean.1 && clean.0 < 1.5 * clean.1,
+        "read noise alone: reported {:.3} px, true scatter {:.3} px",
+        clean.0,
+        clean.1
+    );
+    // Speckle on the beam moves its centre far more than read noise does: the reported
+    // uncertainty grows with it (grains finer than the beam, a new pattern each frame).
+    for (contrast, grain) in [(0.5, 4.0), (0.8, 8.0)] {
+        let speckled = reported_and_true_scatter(
+            |s| {
+                bench(s)
+                    .gaussian(truth, 40.0, 150.0)
+                    .speckle(contrast, grain, 100 + s)
+            },
+            truth,
+        );
+        assert!(
+            speckled.1 > 4.0 * clean.1
+                && speckled.0 > 0.5 * speckled.1
+                && speckled.0 < 2.0 * speckled.1,
+            "speckle {contrast} with {grain} px grains: reported {:.3} px, true scatter {:.3} px",
+            speckled.0,
+            speckled.1
+        );
+    }
+}

@@ -173,6 +173,16 @@ pub(crate) const MIN_MOMENT_VARIANCE_PX2: f64 = 0.25;
 /// A Gaussian fit needs at least this many points (four unknowns, four times over).
 pub(crate) const MIN_GAUSSIAN_PIXELS: usize = 16;
 
+/// Classes of interleaved cells a beam's light is split into to measure how surely its
+/// centre is known (a 3 x 3 pattern of cells: eight degrees of freedom per axis, the
+/// estimate's own scatter about a quarter of it).
+pub(crate) const SPLIT_CLASSES: usize = 9;
+
+/// Cells of that pattern per second-moment radius (minor): the pattern repeats every
+/// three cells, 3/4 of a radius, where a Gaussian beam's own shape has no power left
+/// (e^-9 of its peak), so shape cancels between classes and only finer structure remains.
+pub(crate) const SPLIT_CELLS_PER_RADIUS: f64 = 4.0;
+
 // A beam's bright core (`core`)
 
 /// Recentring passes: the core window follows the core's own centroid.
