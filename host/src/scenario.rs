@@ -276,6 +276,31 @@ mod tests {
     }
 
     #[test]
+    fn every_shipped_scenario_loads_and_renders_each_task() {
+        let folder = shipped("");
+        let mut files: Vec<_> = std::fs::read_dir(&folder)
+            .unwrap()
+            .map(|entry| entry.unwrap().path())
+            .filter(|path| path.extension().is_some_and(|e| e == "toml"))
+            .collect();
+        files.sort();
+        assert!(files.len() >= 6, "{files:?}");
+        for path in files {
+            let file =
+                ScenarioFile::load(&path).unwrap_or_else(|e| panic!("{}: {e:#}", path.display()));
+            let michelson = optalign_optics::Michelson::new(file.michelson.clone(), [0; 4]);
+            let cavity = optalign_optics::Cavity::new(file.cavity.clone(), [0; 2]);
+            let (michelson, cavity) = (michelson.unwrap(), cavity.unwrap());
+            assert!(
+                michelson.render(&[0; 4], 0).width() > 0,
+                "{}",
+                path.display()
+            );
+            assert!(cavity.render(&[0; 2], 0).width() > 0, "{}", path.display());
+        }
+    }
+
+    #[test]
     fn bad_photo_paths_crops_and_files_are_named() {
         let dir = tempfile::tempdir().unwrap();
         let write = |text: &str| {

@@ -16,7 +16,7 @@ use super::gaussian::{GaussianFit, GaussianFitter};
 use super::picture::Picture;
 use super::tuning::{
     BLOCK, CLIPPED_SHARE, CORE_PROMINENCE_NOISES, CORE_SHARE, FIT_FLOOR_NOISES, FIT_FLOOR_SHARE,
-    JOIN_GAP_SHARE, JOIN_PEAK_SHARE, JOIN_VALLEY_NOISES, JOIN_VALLEY_SHARE, MAX_FIT_RADIUS_SHARE,
+    JOIN_GAP_SHARE, JOIN_NODE_SHARE, JOIN_PEAK_SHARE, JOIN_VALLEY_NOISES, MAX_FIT_RADIUS_SHARE,
     MAX_SPOT_ROUGHNESS, MIN_MOMENT_VARIANCE_PX2, MIN_REGION_BLOCKS, MIN_SHARE, MIN_SIGNIFICANCE,
     MOMENT_FLOOR_MISFITS, MOMENT_WINDOW_RADII, SATURATED_PIXELS, SETTLED_PX,
     SPLIT_CELLS_PER_RADIUS, SPLIT_CLASSES, THRESHOLD_NOISES,
@@ -558,24 +558,18 @@ fn join_regions(
     groups
 }
 
-/// Whether the light on the line between two regions' centres falls to a dark valley:
-/// below [`JOIN_VALLEY_SHARE`] of the weaker region's brightest block, beyond the noise.
-/// A saturated region's true peak is unknown (far above its clipped level, which a
-/// node's faint light may well exceed the share of): its valley is not judged.
+/// Whether the light on the line between two regions' centres falls to a node, darker
+/// than two separate beams could make it: two beams side by side add their light, so
+/// between them it is at least the sum of their tails (each region taken for a Gaussian of
+/// its own peak and block moments); the lobes of one mode, or the stripes of a beam crossed
+/// by dark fringes, cancel there. Joined when some point of the line is below
+/// [`JOIN_NODE_SHARE`] of that sum, beyond the noise. A saturated region's true peak is
+/// unknown (its tail cannot be predicted): its valley is not judged.
 fn dark_between(picture: &Picture, grid: &Grid, a: &Region, b: &Region) -> bool {
-    let (w, h) = (picture.width(), picture.height());
-    let brightest = |r: &Region| {
-        r.blocks
-            .iter()
-            .copied()
-            .max_by(|&i, &j| grid.means[i].total_cmp(&grid.means[j]))
-            .filter(|&i| !block_pixels(i, grid, w, h).any(|p| picture.is_saturated(p)))
-            .map(|i| grid.means[i])
-    };
-    let (Some(peak_a), Some(peak_b)) = (brightest(a), brightest(b)) else {
+    let (Some(tail_a), Some(tail_b)) = (Tail::of(picture, grid, a), Tail::of(picture, grid, b))
+    else {
         return true;
     };
-    let weaker = peak_a.min(peak_b);
     let length = (b.centre[0] - a.centre[0]).hypot(b.centre[1] - a.centre[1]);
     let samples = (2.0 * length / BLOCK as f64).ceil().max(1.0) as usize;
     (0..=samples).any(|k| {
@@ -587,9 +581,67 @@ fn dark_between(picture: &Picture, grid: &Grid, a: &Region, b: &Region) -> bool 
             (y.max(0.0) as usize / BLOCK).min(grid.bh - 1),
         );
         let i = by * grid.bw + bx;
-        let block_noise = grid.pixel_noise[i] / BLOCK as f32;
-        grid.means[i] <= JOIN_VALLEY_SHARE * weaker + JOIN_VALLEY_NOISES * block_noise
+        let block_noise = f64::from(grid.pixel_noise[i]) / BLOCK as f64;
+        let apart = tail_a.at([x, y]) + tail_b.at([x, y]);
+        f64::from(grid.means[i]) <= JOIN_NODE_SHARE * apart + JOIN_VALLEY_NOISES * block_noise
     })
+}
+
+/// A region's light taken for a Gaussian spot: its brightest block's level and the
+/// second moments of its blocks' light.
+struct Tail {
+    peak: f64,
+    centre: [f64; 2],
+    /// The inverse of the blocks' covariance, px⁻².
+    inverse: [[f64; 2]; 2],
+}
+
+impl Tail {
+    /// `None` when the region is saturated or its blocks do not spread along both axes.
+    fn of(picture: &Picture, grid: &Grid, region: &Region) -> Option<Self> {
+        let (w, h) = (picture.width(), picture.height());
+        let brightest = region
+            .blocks
+            .iter()
+            .copied()
+            .max_by(|&i, &j| grid.means[i].total_cmp(&grid.means[j]))?;
+        if block_pixels(brightest, grid, w, h).any(|p| picture.is_saturated(p)) {
+            return None;
+        }
+        let (mut s, mut sx, mut sy) = (0.0, 0.0, 0.0);
+        for &b in &region.blocks {
+            let (v, c) = (f64::from(grid.means[b].max(0.0)), grid.centre_of(b));
+            s += v;
+            sx += v * c[0];
+            sy += v * c[1];
+        }
+        let centre = [sx / s, sy / s];
+        let (mut cxx, mut cyy, mut cxy) = (0.0, 0.0, 0.0);
+        for &b in &region.blocks {
+            let (v, c) = (f64::from(grid.means[b].max(0.0)), grid.centre_of(b));
+            let d = [c[0] - centre[0], c[1] - centre[1]];
+            cxx += v * d[0] * d[0];
+            cyy += v * d[1] * d[1];
+            cxy += v * d[0] * d[1];
+        }
+        let det = (cxx * cyy - cxy * cxy) / (s * s);
+        (s > 0.0 && det > 0.0).then(|| Self {
+            peak: f64::from(grid.means[brightest]),
+            centre,
+            inverse: [
+                [cyy / s / det, -cxy / s / det],
+                [-cxy / s / det, cxx / s / det],
+            ],
+        })
+    }
+
+    /// The spot's light at `point`.
+    fn at(&self, point: [f64; 2]) -> f64 {
+        let d = [point[0] - self.centre[0], point[1] - self.centre[1]];
+        let m = &self.inverse;
+        let q = d[0] * (m[0][0] * d[0] + m[0][1] * d[1]) + d[1] * (m[1][0] * d[0] + m[1][1] * d[1]);
+        self.peak * (-0.5 * q).exp()
+    }
 }
 
 /// Whether the cores of two regions come within `limit` px of each other.

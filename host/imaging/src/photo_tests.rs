@@ -37,7 +37,7 @@ fn distance(a: [f64; 2], b: [f64; 2]) -> f64 {
     (a[0] - b[0]).hypot(a[1] - b[1])
 }
 
-const PHOTOS: [Photo; 6] = [
+const PHOTOS: [Photo; 9] = [
     Photo {
         file: "TEM00_300mm.png",
         half_max: [544.96, 118.60],
@@ -67,6 +67,21 @@ const PHOTOS: [Photo; 6] = [
         file: "t-414mm.png",
         half_max: [477.69, 384.07],
         low: [479.94, 386.86],
+    },
+    Photo {
+        file: "TEM01_100mm.png",
+        half_max: [727.22, 623.85],
+        low: [727.62, 626.35],
+    },
+    Photo {
+        file: "TEM02_200mm.png",
+        half_max: [631.13, 341.22],
+        low: [631.93, 341.14],
+    },
+    Photo {
+        file: "k-300mm.png",
+        half_max: [567.44, 531.75],
+        low: [569.84, 531.62],
     },
 ];
 

@@ -190,6 +190,28 @@ fn stray_light_a_smear_column_and_hot_pixels_leave_the_beam_alone() {
 }
 
 #[test]
+fn lobes_parted_by_a_faint_node_are_one_beam_and_beams_with_a_faint_valley_stay_apart() {
+    // A three-lobed mode whose nodes hold light (a real mode is never perfectly dark
+    // there): 10 to 20 % of its lobes' peak, well above the old fixed dark share.
+    let truth = [330.4, 235.9];
+    let mode = bench(7)
+        .hermite_gauss(truth, 55.0, 2, 0, 150.0)
+        .gaussian(truth, 45.0, 18.0);
+    let found_beams = beams(&mode);
+    assert_eq!(found_beams.len(), 1, "{found_beams:?}");
+    let (beam, d) = found(&mode, truth);
+    assert!(d < 2.0, "{d} {beam:?}");
+    // Two separate beams whose valley holds the same share of their peak: their tails add
+    // up there, no node, so they stay two.
+    let (left, right) = ([245.0, 240.0], [392.0, 240.0]);
+    let pair = bench(8)
+        .gaussian(left, 60.0, 150.0)
+        .gaussian(right, 60.0, 150.0);
+    assert_eq!(beams(&pair).len(), 2, "{:?}", beams(&pair));
+    assert!(found(&pair, left).1 < 1.5 && found(&pair, right).1 < 1.5);
+}
+
+#[test]
 fn two_beams_side_by_side_stay_apart() {
     let left = [200.3, 240.0];
     let right = [420.8, 245.0];

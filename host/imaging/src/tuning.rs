@@ -123,15 +123,16 @@ pub(crate) const JOIN_GAP_SHARE: f64 = 0.35;
 /// ... and the weaker peak is at least this share of the stronger ...
 pub(crate) const JOIN_PEAK_SHARE: f32 = 0.2;
 
-/// ... and the light between them falls below this share of the weaker peak (beyond the
-/// noise): inside one beam the parts are parted by a dark line (a mode's node, a dark
-/// fringe, a speckle grain's edge), while between two beams whose tails overlap the tails
-/// add up: two Gaussians of one size keep more than 4 % of their peak between them until
-/// they are 2.8 radii apart, where their cores lie too far apart to be joined anyway.
-pub(crate) const JOIN_VALLEY_SHARE: f32 = 0.04;
+/// ... and the light between them falls below this share of what two separate beams'
+/// tails would add up to there (each region a Gaussian of its own moments): a node, where
+/// the light of one coherent beam cancels (a mode's lobes, a beam's stripes between dark
+/// fringes), not the sum of two beams side by side, which is never less than their tails.
+/// Half leaves room for the regions' moments, cut where they meet, underrating their
+/// tails; a mode's node, ideally dark, holds a few per cent of its lobes' peak.
+pub(crate) const JOIN_NODE_SHARE: f64 = 0.5;
 
-/// The valley may exceed that share by this many deviations of a block's mean.
-pub(crate) const JOIN_VALLEY_NOISES: f32 = 3.0;
+/// The node may exceed that share by this many deviations of a block's mean.
+pub(crate) const JOIN_VALLEY_NOISES: f64 = 3.0;
 
 /// In the measuring window, blocks whose smoothed light lies within this many background
 /// misfits of the background count as none: the background is known no better there, and
