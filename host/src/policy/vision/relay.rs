@@ -8,7 +8,7 @@
 //! centres it; then it moves to the far station, where the same tilt moves the spot
 //! farther by the ratio of the stations' distances (from the brief's bench geometry; when
 //! the bench did not give it, the far response is measured there), and centres it with
-//! that response, refined by Broyden updates. Features that stay put while the mirror
+//! that response, refined by the bench model. Features that stay put while the mirror
 //! tilts are stray light, remembered per station (so is all that shows once tilts adding
 //! up to the longest probe moved nothing, and the near servo starts again); where a
 //! station shows other strong light beside the spot, the spot is thrown clear of itself
@@ -20,17 +20,18 @@
 //! Every move of the camera places it a little differently: at C8, where the result is
 //! judged, the spot's place is averaged over as many placements as the camera mover's
 //! repeatability (from the brief, or the spread the visits show) calls for.
-//! The servos work in where each mount's load is, not in the commands: a reversal that
-//! moved the spot less than the measured response says teaches the mount's dead band,
-//! which later commands go past the target by (see `lash`).
+//! The servos work in where each mount's load is, not in the commands: each mirror's
+//! commands and the whole spots seen at the station it is steered at (until the camera
+//! moves) go to its tracker, whose play operator finds the mount's dead band where the
+//! sightings show one (see `model` and `play`); later commands go past the target by it.
 
 use optalign_optics::{Frame, Station};
 
 use super::backdrops::{Backdrops, THROW_RADII, Throw, Thrown};
-use super::lash::Lash;
 use super::model::{Affine, Tracker, Vec2, carried, column_norm, distance, square_rings};
 use super::see::{View, motion, stationary_pairs};
 use super::servo::{Servo, Spot, useful_probe};
+use super::tuning::MIN_NOISE_PX;
 use crate::imaging::Beam;
 use crate::task::{BenchGeometry, RelayAction, RelayLimits};
 
@@ -121,8 +122,9 @@ pub struct RelayAgent {
     /// tilt per step and pixel pitch are known: sizes the first probes.
     px_per_step_mm: Option<f64>,
     cumulative: [i32; 8],
-    /// Each mirror's lost motion, and where its load is.
-    lash: [Lash; 4],
+    /// Each mirror's commands and the whole spots seen at the station it is steered at:
+    /// its lost motion, and where its load is.
+    mounts: [Tracker; 4],
     /// The last action executed tilted the current mirror.
     tilted: bool,
     station: usize,
@@ -192,7 +194,7 @@ impl RelayAgent {
                     2.0 * tilt * std::f64::consts::FRAC_1_SQRT_2 / pitch[0].max(pitch[1])
                 }),
             cumulative: [0; 8],
-            lash: [Lash::default(); 4],
+            mounts: std::array::from_fn(|_| new_mount(limits)),
             tilted: false,
             station: 7,
             mirror: 0,
@@ -256,7 +258,7 @@ impl RelayAgent {
 
     /// Where mirror `m`'s load is (vertical, horizontal), steps.
     fn tilt_of(&self, m: usize) -> Vec2 {
-        self.lash[m].load()
+        self.mounts[m].load().unwrap_or_else(|| self.command_of(m))
     }
 
     /// The cumulative command of mirror `m` (vertical, horizontal), steps.
@@ -297,9 +299,8 @@ impl RelayAgent {
             return self.act(tilt_by(self.mirror, step));
         }
         self.previous = Some((view, self.station, self.cumulative));
-        if self.tilted {
-            let [w, h] = self.previous.as_ref().expect("just set").0.size();
-            self.learn_lost_motion(spot, w.min(h));
+        if self.station == working {
+            self.file_sighting(spot);
         }
         let (size, centre) = {
             let v = &self.previous.as_ref().expect("just set").0;
@@ -502,17 +503,17 @@ impl RelayAgent {
         best.map(|(_, step)| step)
     }
 
-    /// What the last tilt showed of the current mirror's lost motion, by the response of
-    /// the station's servo.
-    fn learn_lost_motion(&mut self, spot: Option<Beam>, side: f64) {
-        let servo = self.servo();
-        let tilt = self.tilt_of(self.mirror);
-        if let Some((from, moved)) = spot
-            .map(|s| self.estimate(&s))
-            .and_then(|seen| servo.moved_since_last(tilt, &seen, side))
-        {
-            self.lash[self.mirror].learn(from, moved);
-        }
+    /// Files a whole spot seen at the station the current mirror is steered at with its
+    /// tracker, which then estimates the mount's lost motion again.
+    fn file_sighting(&mut self, spot: Option<Beam>) {
+        let Some(seen) = spot.map(|s| self.estimate(&s)).filter(|s| s.whole) else {
+            return;
+        };
+        let command = self.command_of(self.mirror);
+        let mount = &mut self.mounts[self.mirror];
+        mount.noise = seen.scatter;
+        mount.add_clean(command, seen.at);
+        mount.estimate_lost_motion();
     }
 
     /// What the agent believes after its last decision, for the transcript: the mirror
@@ -529,7 +530,7 @@ impl RelayAgent {
             "imaged_at": format!("C{}", self.station + 1),
             "spot_px": self.seen_at,
             "response_px_per_step": self.servo().gain(),
-            "lost_motion_steps": self.lash.map(|lash| lash.band()),
+            "lost_motion_steps": self.mounts.iter().map(Tracker::lost).collect::<Vec<_>>(),
             "backdrops_at": self.backdrops.learned().map(|s| format!("C{}", s + 1)).collect::<Vec<_>>(),
             "c8_placements": {
                 "made": self.placements.len(),
@@ -586,10 +587,17 @@ impl RelayAgent {
     /// Where the spot is: its centroid, and whether it is whole enough to steer by (cut by
     /// the sensor's edge, its centroid only points the way).
     fn estimate(&self, s: &Beam) -> Spot {
+        let whole = s.edge_level < WHOLE_ENOUGH_EDGE;
         Spot {
             at: s.centre,
-            whole: s.edge_level < WHOLE_ENOUGH_EDGE,
+            whole,
             signal: s.signal,
+            // A cut spot's centroid is pulled in by up to its size.
+            scatter: if whole {
+                s.uncertainty.max(MIN_NOISE_PX)
+            } else {
+                s.size().max(MIN_NOISE_PX)
+            },
         }
     }
 
@@ -858,7 +866,7 @@ impl RelayAgent {
         let step = f64::from(self.limits.max_step);
         let bound = f64::from(self.limits.max_cumulative);
         let u = self.command_of(m);
-        let command = self.lash[m].command_for(target);
+        let command = self.mounts[m].command_to_load(target, u);
         let wanted = [0, 1].map(|a| command[a].clamp(-bound, bound) - u[a]);
         let tilt = RelayAction::Tilt {
             mirror: m as u8,
@@ -883,15 +891,18 @@ impl RelayAgent {
                 horizontal,
             }) => {
                 let m = usize::from(mirror);
+                let from = self.command_of(m);
                 self.cumulative[2 * m] += vertical;
                 self.cumulative[2 * m + 1] += horizontal;
-                let command = self.command_of(m);
-                self.lash[m].moved(command);
+                let to = self.command_of(m);
+                self.mounts[m].moved(from, to);
                 self.tilted = m == self.mirror;
             }
             Some(RelayAction::Measure { station }) => {
                 if station.index() != self.station {
                     self.backdrops.arrived(station.index());
+                    // The camera sits differently: what it saw elsewhere is another map.
+                    self.mounts[self.mirror].forget_sightings();
                 }
                 self.placed |= station.index() != self.station;
                 self.station = station.index();
@@ -905,6 +916,15 @@ fn new_tracker(limits: &RelayLimits) -> Tracker {
     let bound = f64::from(limits.max_cumulative);
     let probe = CAUTIOUS_SHARE * 2.0 * bound;
     Tracker::new([probe, probe], [[-bound, bound], [-bound, bound]])
+}
+
+/// A mirror's tracker: commands within the range, a fit once they span the shortest probe.
+fn new_mount(limits: &RelayLimits) -> Tracker {
+    let bound = f64::from(limits.max_cumulative);
+    let shortest = PROBE_SHARES[0] * 2.0 * bound;
+    let mut mount = Tracker::new([shortest; 2], [[-bound, bound], [-bound, bound]]);
+    mount.min_spread = shortest;
+    mount
 }
 
 fn measure(station: usize) -> RelayAction {
