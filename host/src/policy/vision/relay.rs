@@ -25,13 +25,15 @@
 //! moves) go to its tracker, whose play operator finds the mount's dead band where the
 //! sightings show one (see `model` and `play`); later commands go past the target by it.
 
+use nalgebra::{Matrix2, Vector2};
 use optalign_optics::{Frame, Station};
 
 use super::backdrops::{Backdrops, THROW_RADII, Throw, Thrown};
+use super::bench::chi2_quantile;
 use super::model::{Affine, Tracker, Vec2, carried, column_norm, distance, square_rings};
 use super::see::{View, motion, stationary_pairs};
 use super::servo::{Servo, Spot, useful_probe};
-use super::tuning::MIN_NOISE_PX;
+use super::tuning::{DONE_CONFIDENCE, MIN_NOISE_PX};
 use crate::imaging::Beam;
 use crate::task::{BenchGeometry, RelayAction, RelayLimits};
 
@@ -81,10 +83,6 @@ const FAR_SEARCH_OVERLAP: f64 = 0.8;
 /// A feature that moved with a tilt is the beam only with at least this share of the
 /// strongest feature's light.
 const MOVED_SHARE: f64 = 0.3;
-
-/// The spot's place at C8 is averaged over enough placements of the camera that their
-/// error, this many standard deviations of it, stays within the centring tolerance.
-const PLACEMENT_SIGMAS: f64 = 3.0;
 
 /// A throw (to learn a station's stationary light) is made only with more evaluations
 /// than this left.
@@ -291,12 +289,12 @@ impl RelayAgent {
             && self.station == working
             && let Some(s) = spot.filter(|s| s.edge_level < WHOLE_ENOUGH_EDGE)
             && self.backdrops.wanted(self.station, &view.beams, &s)
-            && let Some(step) = self.throw_step(&s)
+            && let Some(throw) = self.throw_step(&s)
         {
             let load = self.tilt_of(self.mirror);
-            self.throw = Some(self.backdrops.throw(self.station, frame, s, load, step));
+            self.throw = Some(self.backdrops.throw(self.station, frame, s, load, throw));
             self.previous = Some((view, self.station, self.cumulative));
-            return self.act(tilt_by(self.mirror, step));
+            return self.act(tilt_by(self.mirror, throw.0));
         }
         self.previous = Some((view, self.station, self.cumulative));
         if self.station == working {
@@ -466,9 +464,9 @@ impl RelayAgent {
 
     /// A tilt of one axis of the current mirror, steps, that moves `spot` clear of itself
     /// (by [`THROW_RADII`] of its radii, at the response known or nominal here), towards
-    /// the middle of the axis's range; `None` when the response is unknown or no axis has
-    /// room.
-    fn throw_step(&self, spot: &Beam) -> Option<Vec2> {
+    /// the middle of the axis's range, and how far it moves the spot, px; `None` when the
+    /// response is unknown or no axis has room.
+    fn throw_step(&self, spot: &Beam) -> Option<(Vec2, f64)> {
         let gain = self
             .servo()
             .gain()
@@ -481,7 +479,7 @@ impl RelayAgent {
         let wanted = THROW_RADII * size;
         let bound = f64::from(self.limits.max_cumulative);
         let command = self.command_of(self.mirror);
-        let mut best: Option<(f64, Vec2)> = None;
+        let mut best: Option<(f64, Vec2, f64)> = None;
         for axis in 0..2 {
             let response = gain
                 .map(|g| g[0][axis].hypot(g[1][axis]))
@@ -492,15 +490,15 @@ impl RelayAgent {
                 .round();
             let sign = if command[axis] > 0.0 { -1.0 } else { 1.0 };
             if (command[axis] + sign * steps).abs() <= bound
-                && best.is_none_or(|(s, _)| steps < s)
+                && best.is_none_or(|(s, _, _)| steps < s)
                 && steps * response >= 2.0 * size
             {
                 let mut step = [0.0; 2];
                 step[axis] = sign * steps;
-                best = Some((steps, step));
+                best = Some((steps, step, steps * response));
             }
         }
-        best.map(|(_, step)| step)
+        best.map(|(_, step, reach)| (step, reach))
     }
 
     /// Files a whole spot seen at the station the current mirror is steered at with its
@@ -534,7 +532,7 @@ impl RelayAgent {
             "backdrops_at": self.backdrops.learned().map(|s| format!("C{}", s + 1)).collect::<Vec<_>>(),
             "c8_placements": {
                 "made": self.placements.len(),
-                "needed": self.placements_needed(),
+                "needed": self.placements_needed(self.placements_miss()),
                 "average_px": self.placements_average(self.tilt_of(3)),
             },
         })
@@ -688,7 +686,7 @@ impl RelayAgent {
         if let Some(s) = seen.filter(|s| s.whole && last) {
             self.book_placement(u, s.at);
         }
-        let target = match seen.filter(|s| s.whole && last && self.placements_needed() > 1) {
+        let target = match seen.filter(|s| s.whole && last && self.placements_needed(0.0) > 1) {
             Some(s) => {
                 let average = self.placements_average(u).unwrap_or(s.at);
                 [
@@ -715,7 +713,8 @@ impl RelayAgent {
                 self.next_mirror();
                 return self.act(measure(2 * self.mirror));
             }
-            if self.placements.len() >= self.placements_needed() {
+            let miss = distance(s.at, target);
+            if self.placements.len() >= self.placements_needed(miss) {
                 return self.act(RelayAction::Done);
             }
             // Centred in this placement, not yet on average over enough of them: place
@@ -766,32 +765,48 @@ impl RelayAgent {
         Some(sum.map(|v| v / n))
     }
 
-    /// How many placements at C8 to average: enough for the camera mover's repeatability
-    /// (the brief's, or what placements made one after the other without a tilt between
-    /// them show, when that is larger).
-    fn placements_needed(&self) -> usize {
+    /// How many placements at C8 to average for the model to put the spot within the
+    /// task's tolerance at [`DONE_CONFIDENCE`] when their average misses the centre by
+    /// `miss` px: the average scatters by the camera mover's repeatability (the brief's, or
+    /// what placements made one after the other without a tilt between them show, when
+    /// that is larger) over the root of their number.
+    fn placements_needed(&self, miss: f64) -> usize {
         let spread = self
             .placement_px
             .unwrap_or(0.0)
             .max(self.placements_spread());
-        let needed = (PLACEMENT_SIGMAS * spread / self.tolerance()).powi(2);
+        let room = (self.tolerance() - miss).max(f64::EPSILON);
+        let needed = chi2_quantile(DONE_CONFIDENCE) * (spread / room).powi(2);
         (needed.ceil() as usize).max(1)
     }
 
-    /// The camera mover's repeatability as C8's placements show it, px per axis: from
+    /// How far the average of C8's placements misses the centre, px (0 while unknown).
+    fn placements_miss(&self) -> f64 {
+        let centre = self.previous.as_ref().map(|(view, _, _)| view.centre());
+        self.placements_average(self.tilt_of(3))
+            .zip(centre)
+            .map_or(0.0, |(average, centre)| distance(average, centre))
+    }
+
+    /// The camera mover's repeatability as C8's placements show it, px along the direction
+    /// it is largest (a camera turned about its mount scatters more one way): from
     /// consecutive placements at the same load (their difference holds two placements'
     /// errors); 0 before there are any.
     fn placements_spread(&self) -> f64 {
-        let squares: Vec<f64> = self
+        let differences: Vec<Vector2<f64>> = self
             .placements
             .windows(2)
             .filter(|pair| distance(pair[0].0, pair[1].0) < 1.0)
-            .map(|pair| distance(pair[0].1, pair[1].1).powi(2))
+            .map(|pair| Vector2::new(pair[1].1[0] - pair[0].1[0], pair[1].1[1] - pair[0].1[1]))
             .collect();
-        if squares.is_empty() {
+        if differences.is_empty() {
             return 0.0;
         }
-        (squares.iter().sum::<f64>() / (4.0 * squares.len() as f64)).sqrt()
+        let scatter = differences
+            .iter()
+            .fold(Matrix2::zeros(), |sum, d| sum + d * d.transpose())
+            / (2.0 * differences.len() as f64);
+        scatter.symmetric_eigenvalues().max().max(0.0).sqrt()
     }
 
     /// The next tilt of a search for a spot not seen at the far station, when its response
