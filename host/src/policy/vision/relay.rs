@@ -963,3 +963,65 @@ fn strongest(beams: &[Beam]) -> Option<Beam> {
         .max_by(|a, b| a.signal.total_cmp(&b.signal))
         .copied()
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::policy::vision::play::{Play, trajectory};
+
+    #[test]
+    fn a_mounts_dead_band_is_learned_from_its_sightings_and_compensated() {
+        // A mount losing 300 and 200 steps on each reversal of its axes, seen through a
+        // fixed response of a far station's size (a tenth of it, at a near station, shows
+        // half the band as less than the tracker's threshold of a band worth taking);
+        // each command is made by the mount's own model.
+        let truth = Play {
+            band: [300.0, 200.0],
+            start: [0.0; 2],
+        };
+        let response = Affine {
+            offset: [320.0, 240.0],
+            gain: [[0.3, 0.04], [-0.02, 0.25]],
+        };
+        let mut mount = new_mount(&RelayLimits::default());
+        mount.noise = MIN_NOISE_PX;
+        let mut path = vec![[0.0, 0.0]];
+        let mut misses = Vec::new();
+        let targets = [
+            [2000.0, 0.0],
+            [2000.0, 1500.0],
+            [500.0, 1500.0],
+            [500.0, 0.0],
+            [2500.0, 800.0],
+            [1000.0, 800.0],
+            [1000.0, 2000.0],
+            [2200.0, 300.0],
+            [800.0, 1200.0],
+            [1800.0, 1800.0],
+            [1200.0, 400.0],
+            [1600.0, 1000.0],
+            [900.0, 900.0],
+            [1700.0, 1300.0],
+        ];
+        for target in targets {
+            let command = path[path.len() - 1];
+            let next = mount.command_to_load(target, command);
+            mount.moved(command, next);
+            path.push(next);
+            let load = trajectory(&path, truth)[path.len() - 1];
+            misses.push((load[0] - target[0]).abs().max((load[1] - target[1]).abs()));
+            mount.add_clean(next, response.predict(load));
+            mount.estimate_lost_motion();
+        }
+        let lost = mount.lost();
+        assert!((lost[0] - 300.0).abs() < 30.0, "{lost:?}");
+        assert!((lost[1] - 200.0).abs() < 30.0, "{lost:?}");
+        // Before the band was learned, reversals missed by half of it; after, the commands
+        // go past the target by it and the load lands there, reversals included.
+        assert!(misses[..4].iter().any(|m| *m > 100.0), "{misses:?}");
+        assert!(
+            misses[misses.len() - 3..].iter().all(|m| *m < 30.0),
+            "{misses:?}"
+        );
+    }
+}
