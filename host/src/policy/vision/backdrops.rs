@@ -19,8 +19,10 @@ const BESIDE_SHARE: f64 = 0.3;
 pub const THROW_RADII: f64 = 4.0;
 
 /// ... and is clear of where it was when its two places in the frames' difference lie at
-/// least this many of its radii apart (where its tails overlap, a few per cent of its peak
-/// stays in the backdrop).
+/// least this many of its radii apart, and the throws made moved it that far by the
+/// response (where its tails overlap, a few per cent of its peak stays in the backdrop).
+/// Its radius is the largest it shows: in the spot thrown, where it left or where it came
+/// (a noisy or speckled spot is seen as fragments smaller than the beam).
 const CLEAR_RADII: f64 = 2.5;
 
 /// A change in a throw's difference counts with this share of the strongest feature's
@@ -63,6 +65,8 @@ pub struct Throw {
     /// The command of one throw, steps per axis, and how many were made.
     pub step: Vec2,
     pub made: usize,
+    /// How far one throw moves the spot by the response, px.
+    reach: f64,
 }
 
 /// What the frame after a throw showed.
@@ -162,15 +166,15 @@ impl Backdrops {
             })
     }
 
-    /// Starts a throw of `step` at `place` from the frame `before` (showing `spot`), the
-    /// load at `load`.
+    /// Starts a throw of `step` (moving the spot `reach` px) at `place` from the frame
+    /// `before` (showing `spot`), the load at `load`.
     pub fn throw(
         &mut self,
         place: usize,
         before: &Frame,
         spot: Beam,
         load: Vec2,
-        step: Vec2,
+        (step, reach): (Vec2, f64),
     ) -> Throw {
         if let Some(p) = self.places.get_mut(place) {
             p.tried = true;
@@ -182,6 +186,7 @@ impl Backdrops {
             load,
             step,
             made: 1,
+            reach,
         }
     }
 
@@ -223,9 +228,15 @@ impl Backdrops {
             }
             None => Backdrop::from_pair(&throw.before, after, noise),
             Some(gone) => {
-                if come
+                let radius = come
                     .iter()
-                    .any(|c| distance(c.centre, gone.centre) < CLEAR_RADII * gone.size())
+                    .map(Beam::size)
+                    .fold(gone.size().max(throw.spot.size()), f64::max);
+                let thrown = throw.made as f64 * throw.reach;
+                if thrown < CLEAR_RADII * radius
+                    || come
+                        .iter()
+                        .any(|c| distance(c.centre, gone.centre) < CLEAR_RADII * radius)
                 {
                     return Thrown::Short;
                 }
@@ -310,7 +321,7 @@ mod tests {
     fn thrown(backdrops: &mut Backdrops, from: [f64; 2]) -> Throw {
         let before = frame(Some(from), STRAY, 1);
         let spot = *find_beams(&Picture::new(&before)).first().expect("a beam");
-        backdrops.throw(0, &before, spot, [0.0; 2], [0.0, 1000.0])
+        backdrops.throw(0, &before, spot, [0.0; 2], ([0.0, 1000.0], 400.0))
     }
 
     #[test]
@@ -365,6 +376,20 @@ mod tests {
         assert_eq!(backdrops.learn(&throw, &short), Thrown::Short);
         let dark = frame(None, STRAY, 5);
         assert_eq!(backdrops.learn(&throw, &dark), Thrown::Learned);
+    }
+
+    #[test]
+    fn a_throw_shorter_than_the_beam_is_short_though_its_spot_looked_small() {
+        // The spot thrown was seen as a fragment a tenth of the beam, and the throw went
+        // 120 px: the beam (radius about 100 px) is not clear of itself, wherever it shows.
+        let mut backdrops = Backdrops::new(1);
+        let before = frame(Some([190.0, 200.0]), STRAY, 1);
+        let mut spot = *find_beams(&Picture::new(&before)).first().expect("a beam");
+        spot.radii = spot.radii.map(|r| r / 10.0);
+        let throw = backdrops.throw(0, &before, spot, [0.0; 2], ([0.0, 300.0], 120.0));
+        let dark = frame(None, STRAY, 5);
+        assert_eq!(backdrops.learn(&throw, &dark), Thrown::Short);
+        assert_eq!(backdrops.learned().count(), 0);
     }
 
     #[test]

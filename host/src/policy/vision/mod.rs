@@ -7,7 +7,6 @@
 mod backdrops;
 mod bench;
 mod cavity;
-mod lash;
 mod michelson;
 mod model;
 mod play;

@@ -352,6 +352,28 @@ impl Tracker {
         self.play.band
     }
 
+    /// Where the load sits now, by the play estimated; `None` before the first move.
+    pub fn load(&self) -> Option<Vec2> {
+        self.load_now()
+    }
+
+    /// The command that puts the load at `target` from the command `current` (the one last
+    /// booked by [`Self::moved`]): an axis whose load must move goes past the target by half
+    /// the lost motion on the side it approaches from; one already there stays.
+    pub fn command_to_load(&self, target: Vec2, current: Vec2) -> Vec2 {
+        let load = self.load_now().unwrap_or(current);
+        play::command_for(target, load, self.play.band, current, SAME_STEP)
+    }
+
+    /// Forgets every sighting (the feature is seen from elsewhere now, through another
+    /// map), keeping the command path and the play estimated on it.
+    pub fn forget_sightings(&mut self) {
+        self.clean.clear();
+        self.partial.clear();
+        self.missing.clear();
+        self.lost_at = None;
+    }
+
     /// Where the load sat at each command of the path, for the mount's `play`.
     fn loads(&self, play: Play) -> Vec<Vec2> {
         play::trajectory(&self.path, play)

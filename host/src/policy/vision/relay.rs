@@ -8,7 +8,7 @@
 //! centres it; then it moves to the far station, where the same tilt moves the spot
 //! farther by the ratio of the stations' distances (from the brief's bench geometry; when
 //! the bench did not give it, the far response is measured there), and centres it with
-//! that response, refined by Broyden updates. Features that stay put while the mirror
+//! that response, refined by the bench model. Features that stay put while the mirror
 //! tilts are stray light, remembered per station (so is all that shows once tilts adding
 //! up to the longest probe moved nothing, and the near servo starts again); where a
 //! station shows other strong light beside the spot, the spot is thrown clear of itself
@@ -20,17 +20,20 @@
 //! Every move of the camera places it a little differently: at C8, where the result is
 //! judged, the spot's place is averaged over as many placements as the camera mover's
 //! repeatability (from the brief, or the spread the visits show) calls for.
-//! The servos work in where each mount's load is, not in the commands: a reversal that
-//! moved the spot less than the measured response says teaches the mount's dead band,
-//! which later commands go past the target by (see `lash`).
+//! The servos work in where each mount's load is, not in the commands: each mirror's
+//! commands and the whole spots seen at the station it is steered at (until the camera
+//! moves) go to its tracker, whose play operator finds the mount's dead band where the
+//! sightings show one (see `model` and `play`); later commands go past the target by it.
 
+use nalgebra::{Matrix2, Vector2};
 use optalign_optics::{Frame, Station};
 
 use super::backdrops::{Backdrops, THROW_RADII, Throw, Thrown};
-use super::lash::Lash;
+use super::bench::chi2_quantile;
 use super::model::{Affine, Tracker, Vec2, carried, column_norm, distance, square_rings};
 use super::see::{View, motion, stationary_pairs};
 use super::servo::{Servo, Spot, useful_probe};
+use super::tuning::{DONE_CONFIDENCE, MIN_NOISE_PX};
 use crate::imaging::Beam;
 use crate::task::{BenchGeometry, RelayAction, RelayLimits};
 
@@ -81,10 +84,6 @@ const FAR_SEARCH_OVERLAP: f64 = 0.8;
 /// strongest feature's light.
 const MOVED_SHARE: f64 = 0.3;
 
-/// The spot's place at C8 is averaged over enough placements of the camera that their
-/// error, this many standard deviations of it, stays within the centring tolerance.
-const PLACEMENT_SIGMAS: f64 = 3.0;
-
 /// A throw (to learn a station's stationary light) is made only with more evaluations
 /// than this left.
 const MIN_REMAINING_TO_THROW: usize = 10;
@@ -121,8 +120,9 @@ pub struct RelayAgent {
     /// tilt per step and pixel pitch are known: sizes the first probes.
     px_per_step_mm: Option<f64>,
     cumulative: [i32; 8],
-    /// Each mirror's lost motion, and where its load is.
-    lash: [Lash; 4],
+    /// Each mirror's commands and the whole spots seen at the station it is steered at:
+    /// its lost motion, and where its load is.
+    mounts: [Tracker; 4],
     /// The last action executed tilted the current mirror.
     tilted: bool,
     station: usize,
@@ -192,7 +192,7 @@ impl RelayAgent {
                     2.0 * tilt * std::f64::consts::FRAC_1_SQRT_2 / pitch[0].max(pitch[1])
                 }),
             cumulative: [0; 8],
-            lash: [Lash::default(); 4],
+            mounts: std::array::from_fn(|_| new_mount(limits)),
             tilted: false,
             station: 7,
             mirror: 0,
@@ -256,7 +256,7 @@ impl RelayAgent {
 
     /// Where mirror `m`'s load is (vertical, horizontal), steps.
     fn tilt_of(&self, m: usize) -> Vec2 {
-        self.lash[m].load()
+        self.mounts[m].load().unwrap_or_else(|| self.command_of(m))
     }
 
     /// The cumulative command of mirror `m` (vertical, horizontal), steps.
@@ -289,17 +289,16 @@ impl RelayAgent {
             && self.station == working
             && let Some(s) = spot.filter(|s| s.edge_level < WHOLE_ENOUGH_EDGE)
             && self.backdrops.wanted(self.station, &view.beams, &s)
-            && let Some(step) = self.throw_step(&s)
+            && let Some(throw) = self.throw_step(&s)
         {
             let load = self.tilt_of(self.mirror);
-            self.throw = Some(self.backdrops.throw(self.station, frame, s, load, step));
+            self.throw = Some(self.backdrops.throw(self.station, frame, s, load, throw));
             self.previous = Some((view, self.station, self.cumulative));
-            return self.act(tilt_by(self.mirror, step));
+            return self.act(tilt_by(self.mirror, throw.0));
         }
         self.previous = Some((view, self.station, self.cumulative));
-        if self.tilted {
-            let [w, h] = self.previous.as_ref().expect("just set").0.size();
-            self.learn_lost_motion(spot, w.min(h));
+        if self.station == working {
+            self.file_sighting(spot);
         }
         let (size, centre) = {
             let v = &self.previous.as_ref().expect("just set").0;
@@ -465,9 +464,9 @@ impl RelayAgent {
 
     /// A tilt of one axis of the current mirror, steps, that moves `spot` clear of itself
     /// (by [`THROW_RADII`] of its radii, at the response known or nominal here), towards
-    /// the middle of the axis's range; `None` when the response is unknown or no axis has
-    /// room.
-    fn throw_step(&self, spot: &Beam) -> Option<Vec2> {
+    /// the middle of the axis's range, and how far it moves the spot, px; `None` when the
+    /// response is unknown or no axis has room.
+    fn throw_step(&self, spot: &Beam) -> Option<(Vec2, f64)> {
         let gain = self
             .servo()
             .gain()
@@ -480,7 +479,7 @@ impl RelayAgent {
         let wanted = THROW_RADII * size;
         let bound = f64::from(self.limits.max_cumulative);
         let command = self.command_of(self.mirror);
-        let mut best: Option<(f64, Vec2)> = None;
+        let mut best: Option<(f64, Vec2, f64)> = None;
         for axis in 0..2 {
             let response = gain
                 .map(|g| g[0][axis].hypot(g[1][axis]))
@@ -491,28 +490,28 @@ impl RelayAgent {
                 .round();
             let sign = if command[axis] > 0.0 { -1.0 } else { 1.0 };
             if (command[axis] + sign * steps).abs() <= bound
-                && best.is_none_or(|(s, _)| steps < s)
+                && best.is_none_or(|(s, _, _)| steps < s)
                 && steps * response >= 2.0 * size
             {
                 let mut step = [0.0; 2];
                 step[axis] = sign * steps;
-                best = Some((steps, step));
+                best = Some((steps, step, steps * response));
             }
         }
-        best.map(|(_, step)| step)
+        best.map(|(_, step, reach)| (step, reach))
     }
 
-    /// What the last tilt showed of the current mirror's lost motion, by the response of
-    /// the station's servo.
-    fn learn_lost_motion(&mut self, spot: Option<Beam>, side: f64) {
-        let servo = self.servo();
-        let tilt = self.tilt_of(self.mirror);
-        if let Some((from, moved)) = spot
-            .map(|s| self.estimate(&s))
-            .and_then(|seen| servo.moved_since_last(tilt, &seen, side))
-        {
-            self.lash[self.mirror].learn(from, moved);
-        }
+    /// Files a whole spot seen at the station the current mirror is steered at with its
+    /// tracker, which then estimates the mount's lost motion again.
+    fn file_sighting(&mut self, spot: Option<Beam>) {
+        let Some(seen) = spot.map(|s| self.estimate(&s)).filter(|s| s.whole) else {
+            return;
+        };
+        let command = self.command_of(self.mirror);
+        let mount = &mut self.mounts[self.mirror];
+        mount.noise = seen.scatter;
+        mount.add_clean(command, seen.at);
+        mount.estimate_lost_motion();
     }
 
     /// What the agent believes after its last decision, for the transcript: the mirror
@@ -529,11 +528,11 @@ impl RelayAgent {
             "imaged_at": format!("C{}", self.station + 1),
             "spot_px": self.seen_at,
             "response_px_per_step": self.servo().gain(),
-            "lost_motion_steps": self.lash.map(|lash| lash.band()),
+            "lost_motion_steps": self.mounts.iter().map(Tracker::lost).collect::<Vec<_>>(),
             "backdrops_at": self.backdrops.learned().map(|s| format!("C{}", s + 1)).collect::<Vec<_>>(),
             "c8_placements": {
                 "made": self.placements.len(),
-                "needed": self.placements_needed(),
+                "needed": self.placements_needed(self.placements_miss()),
                 "average_px": self.placements_average(self.tilt_of(3)),
             },
         })
@@ -586,10 +585,17 @@ impl RelayAgent {
     /// Where the spot is: its centroid, and whether it is whole enough to steer by (cut by
     /// the sensor's edge, its centroid only points the way).
     fn estimate(&self, s: &Beam) -> Spot {
+        let whole = s.edge_level < WHOLE_ENOUGH_EDGE;
         Spot {
             at: s.centre,
-            whole: s.edge_level < WHOLE_ENOUGH_EDGE,
+            whole,
             signal: s.signal,
+            // A cut spot's centroid is pulled in by up to its size.
+            scatter: if whole {
+                s.uncertainty.max(MIN_NOISE_PX)
+            } else {
+                s.size().max(MIN_NOISE_PX)
+            },
         }
     }
 
@@ -680,7 +686,7 @@ impl RelayAgent {
         if let Some(s) = seen.filter(|s| s.whole && last) {
             self.book_placement(u, s.at);
         }
-        let target = match seen.filter(|s| s.whole && last && self.placements_needed() > 1) {
+        let target = match seen.filter(|s| s.whole && last && self.placements_needed(0.0) > 1) {
             Some(s) => {
                 let average = self.placements_average(u).unwrap_or(s.at);
                 [
@@ -707,7 +713,8 @@ impl RelayAgent {
                 self.next_mirror();
                 return self.act(measure(2 * self.mirror));
             }
-            if self.placements.len() >= self.placements_needed() {
+            let miss = distance(s.at, target);
+            if self.placements.len() >= self.placements_needed(miss) {
                 return self.act(RelayAction::Done);
             }
             // Centred in this placement, not yet on average over enough of them: place
@@ -758,32 +765,48 @@ impl RelayAgent {
         Some(sum.map(|v| v / n))
     }
 
-    /// How many placements at C8 to average: enough for the camera mover's repeatability
-    /// (the brief's, or what placements made one after the other without a tilt between
-    /// them show, when that is larger).
-    fn placements_needed(&self) -> usize {
+    /// How many placements at C8 to average for the model to put the spot within the
+    /// task's tolerance at [`DONE_CONFIDENCE`] when their average misses the centre by
+    /// `miss` px: the average scatters by the camera mover's repeatability (the brief's, or
+    /// what placements made one after the other without a tilt between them show, when
+    /// that is larger) over the root of their number.
+    fn placements_needed(&self, miss: f64) -> usize {
         let spread = self
             .placement_px
             .unwrap_or(0.0)
             .max(self.placements_spread());
-        let needed = (PLACEMENT_SIGMAS * spread / self.tolerance()).powi(2);
+        let room = (self.tolerance() - miss).max(f64::EPSILON);
+        let needed = chi2_quantile(DONE_CONFIDENCE) * (spread / room).powi(2);
         (needed.ceil() as usize).max(1)
     }
 
-    /// The camera mover's repeatability as C8's placements show it, px per axis: from
+    /// How far the average of C8's placements misses the centre, px (0 while unknown).
+    fn placements_miss(&self) -> f64 {
+        let centre = self.previous.as_ref().map(|(view, _, _)| view.centre());
+        self.placements_average(self.tilt_of(3))
+            .zip(centre)
+            .map_or(0.0, |(average, centre)| distance(average, centre))
+    }
+
+    /// The camera mover's repeatability as C8's placements show it, px along the direction
+    /// it is largest (a camera turned about its mount scatters more one way): from
     /// consecutive placements at the same load (their difference holds two placements'
     /// errors); 0 before there are any.
     fn placements_spread(&self) -> f64 {
-        let squares: Vec<f64> = self
+        let differences: Vec<Vector2<f64>> = self
             .placements
             .windows(2)
             .filter(|pair| distance(pair[0].0, pair[1].0) < 1.0)
-            .map(|pair| distance(pair[0].1, pair[1].1).powi(2))
+            .map(|pair| Vector2::new(pair[1].1[0] - pair[0].1[0], pair[1].1[1] - pair[0].1[1]))
             .collect();
-        if squares.is_empty() {
+        if differences.is_empty() {
             return 0.0;
         }
-        (squares.iter().sum::<f64>() / (4.0 * squares.len() as f64)).sqrt()
+        let scatter = differences
+            .iter()
+            .fold(Matrix2::zeros(), |sum, d| sum + d * d.transpose())
+            / (2.0 * differences.len() as f64);
+        scatter.symmetric_eigenvalues().max().max(0.0).sqrt()
     }
 
     /// The next tilt of a search for a spot not seen at the far station, when its response
@@ -858,7 +881,7 @@ impl RelayAgent {
         let step = f64::from(self.limits.max_step);
         let bound = f64::from(self.limits.max_cumulative);
         let u = self.command_of(m);
-        let command = self.lash[m].command_for(target);
+        let command = self.mounts[m].command_to_load(target, u);
         let wanted = [0, 1].map(|a| command[a].clamp(-bound, bound) - u[a]);
         let tilt = RelayAction::Tilt {
             mirror: m as u8,
@@ -883,15 +906,18 @@ impl RelayAgent {
                 horizontal,
             }) => {
                 let m = usize::from(mirror);
+                let from = self.command_of(m);
                 self.cumulative[2 * m] += vertical;
                 self.cumulative[2 * m + 1] += horizontal;
-                let command = self.command_of(m);
-                self.lash[m].moved(command);
+                let to = self.command_of(m);
+                self.mounts[m].moved(from, to);
                 self.tilted = m == self.mirror;
             }
             Some(RelayAction::Measure { station }) => {
                 if station.index() != self.station {
                     self.backdrops.arrived(station.index());
+                    // The camera sits differently: what it saw elsewhere is another map.
+                    self.mounts[self.mirror].forget_sightings();
                 }
                 self.placed |= station.index() != self.station;
                 self.station = station.index();
@@ -905,6 +931,15 @@ fn new_tracker(limits: &RelayLimits) -> Tracker {
     let bound = f64::from(limits.max_cumulative);
     let probe = CAUTIOUS_SHARE * 2.0 * bound;
     Tracker::new([probe, probe], [[-bound, bound], [-bound, bound]])
+}
+
+/// A mirror's tracker: commands within the range, a fit once they span the shortest probe.
+fn new_mount(limits: &RelayLimits) -> Tracker {
+    let bound = f64::from(limits.max_cumulative);
+    let shortest = PROBE_SHARES[0] * 2.0 * bound;
+    let mut mount = Tracker::new([shortest; 2], [[-bound, bound], [-bound, bound]]);
+    mount.min_spread = shortest;
+    mount
 }
 
 fn measure(station: usize) -> RelayAction {
@@ -927,4 +962,66 @@ fn strongest(beams: &[Beam]) -> Option<Beam> {
         .iter()
         .max_by(|a, b| a.signal.total_cmp(&b.signal))
         .copied()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::policy::vision::play::{Play, trajectory};
+
+    #[test]
+    fn a_mounts_dead_band_is_learned_from_its_sightings_and_compensated() {
+        // A mount losing 300 and 200 steps on each reversal of its axes, seen through a
+        // fixed response of a far station's size (a tenth of it, at a near station, shows
+        // half the band as less than the tracker's threshold of a band worth taking);
+        // each command is made by the mount's own model.
+        let truth = Play {
+            band: [300.0, 200.0],
+            start: [0.0; 2],
+        };
+        let response = Affine {
+            offset: [320.0, 240.0],
+            gain: [[0.3, 0.04], [-0.02, 0.25]],
+        };
+        let mut mount = new_mount(&RelayLimits::default());
+        mount.noise = MIN_NOISE_PX;
+        let mut path = vec![[0.0, 0.0]];
+        let mut misses = Vec::new();
+        let targets = [
+            [2000.0, 0.0],
+            [2000.0, 1500.0],
+            [500.0, 1500.0],
+            [500.0, 0.0],
+            [2500.0, 800.0],
+            [1000.0, 800.0],
+            [1000.0, 2000.0],
+            [2200.0, 300.0],
+            [800.0, 1200.0],
+            [1800.0, 1800.0],
+            [1200.0, 400.0],
+            [1600.0, 1000.0],
+            [900.0, 900.0],
+            [1700.0, 1300.0],
+        ];
+        for target in targets {
+            let command = path[path.len() - 1];
+            let next = mount.command_to_load(target, command);
+            mount.moved(command, next);
+            path.push(next);
+            let load = trajectory(&path, truth)[path.len() - 1];
+            misses.push((load[0] - target[0]).abs().max((load[1] - target[1]).abs()));
+            mount.add_clean(next, response.predict(load));
+            mount.estimate_lost_motion();
+        }
+        let lost = mount.lost();
+        assert!((lost[0] - 300.0).abs() < 30.0, "{lost:?}");
+        assert!((lost[1] - 200.0).abs() < 30.0, "{lost:?}");
+        // Before the band was learned, reversals missed by half of it; after, the commands
+        // go past the target by it and the load lands there, reversals included.
+        assert!(misses[..4].iter().any(|m| *m > 100.0), "{misses:?}");
+        assert!(
+            misses[misses.len() - 3..].iter().all(|m| *m < 30.0),
+            "{misses:?}"
+        );
+    }
 }

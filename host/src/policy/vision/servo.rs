@@ -1,26 +1,25 @@
-//! Driving a spot to a target with a two-axis relative actuator whose response is not
-//! known: a trust-region servo. Two probes from the best tilt so far (one per axis) give
-//! the response, then Newton steps from the best tilt, no longer than a trust radius that
-//! grows after a step that brought the spot closer and shrinks after one that did not
-//! (the next step starts from the best tilt again), refined on whole spots by the bench
-//! model (`bench`), whose prior is the probed response. When the sensor's edge cuts the spot, what shows of it moves the right way but
-//! less than the beam across the edge: the response is then taken as the rotation (or
-//! mirror image) that best fits the two probes, at the larger of their scales, because a
-//! mount's two tilt axes deflect the beam at right angles. A response that was not measured
-//! on whole spots here (a cut spot's fit, or one assumed beforehand, such as another
-//! mirror's) is used until a step between whole spots lands where it predicted; a step
-//! that loses the spot or does no good sends the servo back to probing, with probes sized
-//! from the response that failed. A probe that lost the
-//! spot is tried the other way, then shorter; one that hardly moved it, longer; a response
-//! from a cut spot that proved wrong is probed again with longer probes, which show more
-//! than the ones that misled it; a response refuted again from the same best tilt is
-//! probed the other way round from the last.
+//! Driving a spot to a target with a two-axis relative actuator: a trust-region servo over
+//! the bench model of the station's response (`bench::Response`). The model starts from a
+//! response given beforehand (measured elsewhere and scaled, or another mirror's: believed
+//! to within [`GAIN_PRIOR_SHARE`]), or from nothing, when two probes from the best tilt (one
+//! per axis) show it. Newton steps from the best tilt then go no longer than a trust radius
+//! that grows after a step that brought the spot closer and shrinks after one that did not
+//! (the next step starts from the best tilt again). Each sighting is weighed by its centre's
+//! scatter (the detector's for a whole spot; for one the sensor's edge cuts, its size: what
+//! shows of it moves the right way but less than the beam) and joins the model when the
+//! chi-square test of its innovation believes it. A model not yet confirmed by a step (a
+//! given guess, or probes of a cut spot) that the next sighting refutes, or whose step loses
+//! the spot or does no good, is dropped: the servo probes again from the best tilt, with
+//! probes sized from the response that failed; a confirmed one sets the sighting aside. A
+//! probe that lost the spot is tried the other way, then shorter; one that hardly moved it,
+//! longer; a response refuted again from the same best tilt is probed the other way round
+//! from the last.
 
 use nalgebra::Matrix2;
 
 use super::bench::Response;
-use super::model::{Affine, Vec2, carried, column_norm, distance};
-use super::tuning::{GAIN_PRIOR_SHARE, MIN_NOISE_PX, PRIOR_OFFSET_PX};
+use super::model::{Affine, Vec2, column_norm, distance};
+use super::tuning::{GAIN_PRIOR_SHARE, PRIOR_OFFSET_PX};
 
 /// A cut spot counts as this many image shorter sides farther than any whole one, less
 /// the share of a whole spot's light it shows.
@@ -39,22 +38,6 @@ const PROBE_VIEW_SHARE: f64 = 0.15;
 /// The trust radius starts at this many probe lengths.
 const START_RADIUS_PROBES: f64 = 4.0;
 
-/// An assumed response is confirmed by a step between whole spots that lands within this
-/// share of the predicted move from where it predicted.
-const CONFIRM_SHARE: f64 = 0.5;
-
-/// How far the response can be trusted.
-#[derive(Clone, Copy, Debug, PartialEq)]
-enum Trust {
-    /// Measured here on whole spots, or given as known.
-    Measured,
-    /// Fitted to probes of a cut spot: it points the way while the spot is cut.
-    Cut,
-    /// Not measured here on whole spots (a cut spot's fit once the spot shows whole, or
-    /// given as a guess): the next step between whole spots confirms or refutes it.
-    Assumed,
-}
-
 /// Where the spot showed.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Spot {
@@ -64,6 +47,8 @@ pub struct Spot {
     pub whole: bool,
     /// Its light.
     pub signal: f64,
+    /// The standard deviation of its centre per axis, px.
+    pub scatter: f64,
 }
 
 /// The best tilt so far and what it showed.
@@ -90,21 +75,25 @@ enum Pending {
 #[derive(Clone, Debug)]
 pub struct Servo {
     best: Option<Best>,
-    /// The response (px per step, columns per axis), once known.
-    gain: Option<[[f64; 2]; 2]>,
-    trust: Trust,
-    /// Each axis's probed response, and whether a cut spot took part.
-    columns: [Option<(Vec2, bool)>; 2],
+    /// The bench model of the response, from the first sighting on.
+    model: Option<Response>,
+    /// The response given beforehand, the model's prior at its first sighting.
+    given: Option<[[f64; 2]; 2]>,
+    /// The model's response can be steered by (given, or both axes probed).
+    known: bool,
+    /// A step confirmed the model's response (or it was given as measured).
+    confirmed: bool,
+    /// Each axis was probed since the model last knew nothing.
+    probed: [bool; 2],
+    /// A cut spot took part in the probes the response came from.
+    cut: bool,
     probe: f64,
     radius: f64,
     /// Shortest and longest probe or step, steps.
     bounds: Vec2,
     pending: Pending,
-    /// The last tilt and spot seen, for the model's updates.
+    /// The last tilt and spot seen.
     last: Option<(Vec2, Spot)>,
-    /// The bench model refining the response from steps between whole spots, from the
-    /// first such step after the response was set.
-    belief: Option<Response>,
     /// The most light a spot showed, for how much of a cut one shows.
     brightest: f64,
     /// The way the next round of probes first goes (+1, -1).
@@ -115,20 +104,22 @@ pub struct Servo {
 
 impl Servo {
     /// A servo whose probes start at `probe` steps within `bounds`, with a response when
-    /// one is known beforehand.
+    /// one is known beforehand (measured, as good as confirmed).
     pub fn new(probe: f64, bounds: Vec2, gain: Option<[[f64; 2]; 2]>) -> Self {
         let probe = probe.clamp(bounds[0], bounds[1]);
         Self {
             best: None,
-            gain,
-            trust: Trust::Measured,
-            columns: [None; 2],
+            model: None,
+            given: gain,
+            known: gain.is_some(),
+            confirmed: true,
+            probed: [false; 2],
+            cut: false,
             probe,
             radius: (START_RADIUS_PROBES * probe).clamp(bounds[0], bounds[1]),
             bounds,
             pending: Pending::Nothing,
             last: None,
-            belief: None,
             brightest: 0.0,
             probe_sign: 1.0,
             refuted_at: None,
@@ -136,11 +127,12 @@ impl Servo {
     }
 
     /// The same servo starting from a guess of the response (another mirror's, say), used
-    /// until the first step between whole spots confirms or refutes it.
+    /// until a sighting refutes it.
     pub fn assume(mut self, gain: [[f64; 2]; 2]) -> Self {
-        self.gain = Some(gain);
-        self.belief = None;
-        self.trust = Trust::Assumed;
+        self.given = Some(gain);
+        self.model = None;
+        self.known = true;
+        self.confirmed = false;
         self
     }
 
@@ -148,44 +140,45 @@ impl Servo {
         self.best
     }
 
-    /// How far the tilt really moved since the last sighting, by the measured response,
-    /// for a spot now `seen` where it was whole both times, when the tilt was meant to move
-    /// from there to `tilt` by enough to show on an image whose shorter side is `side`:
-    /// the tilt of that sighting and the move.
-    pub fn moved_since_last(&self, tilt: Vec2, seen: &Spot, side: f64) -> Option<(Vec2, Vec2)> {
-        let gain = self.gain.filter(|_| self.trust == Trust::Measured)?;
-        let (from, was) = self.last.filter(|(_, was)| was.whole && seen.whole)?;
-        if distance(carried(gain, from, was.at, tilt), was.at) < MIN_MOVE_SHARE * side {
+    /// The response steered by (px per step, columns per axis), once known.
+    fn steering(&self) -> Option<[[f64; 2]; 2]> {
+        if !self.known {
             return None;
         }
-        let response = Affine {
-            offset: was.at,
-            gain,
-        };
-        Some((from, response.solve(seen.at)?))
+        match &self.model {
+            Some(model) => model.mean().map(|m| m.gain),
+            None => self.given,
+        }
     }
 
-    /// The response, unless it came from a cut spot's probes.
+    /// The response, unless it came from a cut spot's probes no step confirmed.
     pub fn gain(&self) -> Option<[[f64; 2]; 2]> {
-        self.gain.filter(|_| self.trust != Trust::Cut)
+        self.steering().filter(|_| !self.cut)
     }
 
     /// Forgets a response that proved wrong: the next commands probe again from the best
     /// tilt, with probes that would move the spot a useful share of the image at its scale.
     fn forget_gain(&mut self, side: f64) {
-        if let Some(gain) = self.gain {
+        if let Some(gain) = self.steering() {
             self.probe = useful_probe(side, column_norm(gain).max(1e-9))
                 .clamp(self.bounds[0], self.bounds[1]);
         }
         self.drop_gain();
     }
 
-    /// Drops the response: the next commands probe both axes again from the best tilt.
+    /// Drops the response: the model knows nothing but the best sighting, and the next
+    /// commands probe both axes again from the best tilt.
     fn drop_gain(&mut self) {
-        self.gain = None;
-        self.belief = None;
-        self.trust = Trust::Measured;
-        self.columns = [None; 2];
+        self.given = None;
+        self.model = self.best.map(|best| {
+            let mut model = Response::broad(best.tilt);
+            model.add(best.tilt, best.spot.at, noise(&best.spot));
+            model
+        });
+        self.known = false;
+        self.confirmed = true;
+        self.probed = [false; 2];
+        self.cut = false;
         self.pending = Pending::Nothing;
     }
 
@@ -200,6 +193,52 @@ impl Servo {
         }
     }
 
+    /// Adds a sighting `s` at `tilt` to the model when its chi-square test believes it (a
+    /// model built on it, with the given response as its prior, when there is none yet);
+    /// whether it was believed.
+    fn learn(&mut self, tilt: Vec2, s: &Spot) -> bool {
+        let r = noise(s);
+        let Some(model) = &mut self.model else {
+            let mut model = match self.given {
+                Some(gain) => {
+                    let prior = Affine {
+                        offset: [0.0; 2],
+                        gain,
+                    }
+                    .anchored(tilt, s.at);
+                    let spread = GAIN_PRIOR_SHARE * column_norm(gain);
+                    Response::with_prior(tilt, prior, PRIOR_OFFSET_PX, spread)
+                }
+                None => Response::broad(tilt),
+            };
+            model.add(tilt, s.at, r);
+            self.model = Some(model);
+            return true;
+        };
+        if self.known && !model.believes(tilt, s.at, r) {
+            return false;
+        }
+        model.add(tilt, s.at, r);
+        true
+    }
+
+    /// The probes of both axes showed the response: it becomes the prior of a model
+    /// through the latest sighting `s` at `tilt`, believed to within [`GAIN_PRIOR_SHARE`]
+    /// (a mount's response changes across its range, which later steps must be free to
+    /// correct).
+    fn probes_done(&mut self, tilt: Vec2, s: &Spot) {
+        let Some(mean) = self.model.as_ref().and_then(Response::mean) else {
+            return;
+        };
+        let spread = GAIN_PRIOR_SHARE * column_norm(mean.gain);
+        let mut model =
+            Response::with_prior(tilt, mean.anchored(tilt, s.at), PRIOR_OFFSET_PX, spread);
+        model.add(tilt, s.at, noise(s));
+        self.model = Some(model);
+        self.known = true;
+        self.confirmed = !self.cut;
+    }
+
     /// Learns from what the last command showed at `tilt` (`seen`: where the spot is, if it
     /// shows), for `target` on an image whose shorter side is `side`.
     pub fn observe(&mut self, tilt: Vec2, seen: Option<Spot>, target: Vec2, side: f64) {
@@ -211,68 +250,63 @@ impl Servo {
             let error = self.error(&best.spot, target, side);
             self.best = Some(Best { error, ..best });
         }
-        match (self.pending, seen, self.best) {
-            (
-                Pending::Probe {
-                    axis,
-                    sign,
-                    flipped,
-                },
-                None,
-                _,
-            ) => {
-                // Lost: the other way, then shorter.
-                self.pending = Pending::Probe {
-                    axis,
-                    sign: -sign,
-                    flipped: true,
-                };
-                if flipped {
-                    self.probe = (self.probe / GROWTH).max(self.bounds[0]);
-                }
-                return;
+        if let (
+            Pending::Probe {
+                axis,
+                sign,
+                flipped,
+            },
+            None,
+        ) = (self.pending, seen)
+        {
+            // Lost: the other way, then shorter.
+            self.pending = Pending::Probe {
+                axis,
+                sign: -sign,
+                flipped: true,
+            };
+            if flipped {
+                self.probe = (self.probe / GROWTH).max(self.bounds[0]);
             }
-            (Pending::Probe { axis, .. }, Some(s), Some(best)) => {
-                let du = tilt[axis] - best.tilt[axis];
-                if distance(s.at, best.spot.at) < MIN_MOVE_SHARE * side {
-                    self.probe = (self.probe * GROWTH).min(self.bounds[1]);
-                } else if du.abs() > 0.5 {
-                    let column = [
-                        (s.at[0] - best.spot.at[0]) / du,
-                        (s.at[1] - best.spot.at[1]) / du,
-                    ];
-                    self.columns[axis] = Some((column, !(s.whole && best.spot.whole)));
-                }
-                if let [Some((c0, r0)), Some((c1, r1))] = self.columns
-                    && self.gain.is_none()
-                {
-                    let measured = [[c0[0], c1[0]], [c0[1], c1[1]]];
-                    let cut = r0 || r1;
-                    self.trust = if cut { Trust::Cut } else { Trust::Measured };
-                    self.gain = Some(if cut {
-                        rotation_fit(measured)
-                    } else {
-                        measured
-                    });
-                }
-            }
-            _ => {}
+            return;
         }
-        let better = match (error(self, seen, target, side), self.best) {
+        let believed = seen.is_some_and(|s| self.learn(tilt, &s));
+        if let (Pending::Probe { axis, .. }, Some(s), Some(best)) = (self.pending, seen, self.best)
+        {
+            if distance(s.at, best.spot.at) < MIN_MOVE_SHARE * side {
+                self.probe = (self.probe * GROWTH).min(self.bounds[1]);
+            } else if (tilt[axis] - best.tilt[axis]).abs() > 0.5 {
+                self.probed[axis] = true;
+                self.cut |= !(s.whole && best.spot.whole);
+            }
+            if self.probed == [true; 2] && !self.known {
+                self.probes_done(tilt, &s);
+            }
+        }
+        let better = match (seen.map(|s| self.error(&s, target, side)), self.best) {
             (Some(e), Some(best)) => e < best.error,
             (Some(_), None) => true,
             (None, _) => false,
         };
-        if self.pending == Pending::Step {
-            self.learn_from_step(tilt, seen, better, side);
+        if self.pending == Pending::Step && !self.confirmed {
+            // A response on trial: a whole sighting it predicted confirms it; one it did
+            // not, a lost spot or a step that did no good refutes it.
+            match seen {
+                Some(s) if believed && s.whole => {
+                    self.confirmed = true;
+                    self.cut = false;
+                }
+                Some(_) if believed && better => {}
+                _ => {
+                    self.forget_gain(side);
+                    if let Some(s) = seen {
+                        self.learn(tilt, &s);
+                    }
+                }
+            }
         }
         if let (true, Some(spot)) = (better, seen) {
             let error = self.error(&spot, target, side);
-            if self.trust == Trust::Cut && spot.whole {
-                // Shows whole now: the cut spot's fit serves as a guess that the next step
-                // between whole spots confirms or refutes.
-                self.trust = Trust::Assumed;
-            }
             self.best = Some(Best { tilt, spot, error });
             if self.pending == Pending::Step {
                 self.radius = (self.radius * GROWTH).min(self.bounds[1]);
@@ -285,64 +319,13 @@ impl Servo {
         }
     }
 
-    /// What a step from the last spot seen to `tilt` (where `seen` showed, `better` than
-    /// the best before) says of the response: between whole spots it refines it (the bench
-    /// model);
-    /// an assumed one is confirmed by a step between whole spots that lands where it
-    /// predicted, kept on trial by one that missed but still did good, and refuted by one
-    /// that lost the spot or did no good.
-    fn learn_from_step(&mut self, tilt: Vec2, seen: Option<Spot>, better: bool, side: f64) {
-        let Some(gain) = self.gain else {
-            return;
-        };
-        let between_whole = match (self.last, seen) {
-            (Some((from, was)), Some(now)) if was.whole && now.whole => Some((from, was, now)),
-            _ => None,
-        };
-        if self.trust == Trust::Assumed {
-            let landed_as_predicted = between_whole.is_some_and(|(from, was, now)| {
-                let predicted = carried(gain, from, was.at, tilt);
-                let moved = distance(predicted, was.at);
-                distance(predicted, now.at) < CONFIRM_SHARE * moved
-            });
-            if landed_as_predicted {
-                self.trust = Trust::Measured;
-            } else if !(seen.is_some() && better) {
-                self.forget_gain(side);
-                return;
-            }
-        }
-        // A move too short to show beyond the centroids' noise teaches nothing.
-        if let Some((from, was, now)) = between_whole
-            && distance(was.at, now.at).max(distance(carried(gain, from, was.at, tilt), was.at))
-                >= MIN_MOVE_SHARE * side
-        {
-            let noise = Matrix2::identity() * MIN_NOISE_PX * MIN_NOISE_PX;
-            let belief = self.belief.get_or_insert_with(|| {
-                let prior = Affine {
-                    offset: was.at,
-                    gain,
-                }
-                .anchored(from, was.at);
-                let spread = GAIN_PRIOR_SHARE * column_norm(gain);
-                let mut belief = Response::with_prior(from, prior, PRIOR_OFFSET_PX, spread);
-                belief.add(from, was.at, noise);
-                belief
-            });
-            belief.add(tilt, now.at, noise);
-            if let Some(refined) = belief.mean() {
-                self.gain = Some(refined.gain);
-            }
-        }
-    }
-
     /// The next tilt: a probe of an axis whose response is not known yet, or a Newton step
     /// towards `target` from the best tilt; `None` before the spot was ever seen.
     pub fn next(&mut self, target: Vec2) -> Option<Vec2> {
         let best = self.best?;
-        match self.gain {
+        match self.steering() {
             None => {
-                let axis = usize::from(self.columns[0].is_some());
+                let axis = usize::from(self.probed[0]);
                 let (sign, flipped) = match self.pending {
                     Pending::Probe {
                         axis: a,
@@ -409,34 +392,15 @@ pub fn useful_probe(side: f64, response: f64) -> f64 {
     PROBE_VIEW_SHARE * side / response
 }
 
-/// The servo's ranking of what was seen (`None` when nothing was).
-fn error(servo: &Servo, seen: Option<Spot>, target: Vec2, side: f64) -> Option<f64> {
-    seen.map(|s| servo.error(&s, target, side))
-}
-
-/// The rotation or mirror image, scaled, nearest to a measured response (columns per
-/// axis): the two tilt axes of a mount deflect the beam at right angles by about the same
-/// amount, so what the probes of a cut spot show (the right way, foreshortened across the
-/// edge) fixes the orientation, and the less foreshortened probe the scale.
-fn rotation_fit(measured: [[f64; 2]; 2]) -> [[f64; 2]; 2] {
-    let m = Matrix2::new(
-        measured[0][0],
-        measured[0][1],
-        measured[1][0],
-        measured[1][1],
-    );
-    let svd = m.svd(true, true);
-    let (Some(u), Some(v_t)) = (svd.u, svd.v_t) else {
-        return measured;
-    };
-    let scale = svd.singular_values.max();
-    let q = u * v_t * scale;
-    [[q[(0, 0)], q[(0, 1)]], [q[(1, 0)], q[(1, 1)]]]
+/// The covariance of a sighting's centre, px².
+fn noise(s: &Spot) -> Matrix2<f64> {
+    Matrix2::identity() * s.scatter * s.scatter
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::policy::vision::model::carried;
 
     /// A station whose spot sits at `offset + gain · tilt`, on a 640 x 480 sensor; beyond
     /// its border the spot is lost, within 100 px of it cut.
@@ -454,10 +418,12 @@ mod tests {
             .predict(tilt);
             let inside = at[0].min(640.0 - at[0]).min(at[1]).min(480.0 - at[1]);
             // What shows of a cut spot: less the farther out it is.
+            let whole = inside > 100.0;
             (inside > -60.0).then_some(Spot {
                 at,
-                whole: inside > 100.0,
+                whole,
                 signal: (inside + 60.0).min(160.0),
+                scatter: if whole { 0.5 } else { 60.0 },
             })
         }
     }
@@ -505,6 +471,7 @@ mod tests {
                 ],
                 whole: true,
                 signal: 100.0,
+                scatter: 0.5,
             });
             servo.observe(tilt, seen, target, 480.0);
             let Some(next) = servo.next(target) else {
@@ -572,21 +539,41 @@ mod tests {
     }
 
     #[test]
-    fn a_foreshortened_response_is_fitted_as_a_turned_one() {
-        // Turned 30 degrees, scale 0.03; the second axis seen at a third across an edge.
-        let (s, c) = 30f64.to_radians().sin_cos();
-        let true_gain = [[0.03 * c, -0.03 * s], [0.03 * s, 0.03 * c]];
-        let measured = [
-            [true_gain[0][0], true_gain[0][1] / 3.0],
-            [true_gain[1][0], true_gain[1][1] / 3.0],
-        ];
-        let fitted = rotation_fit(measured);
-        let worst = (0..2)
-            .flat_map(|r| (0..2).map(move |c| (r, c)))
-            .map(|(r, c)| (fitted[r][c] - true_gain[r][c]).abs())
-            .fold(0.0, f64::max);
-        assert!(worst < 0.01, "{fitted:?} vs {true_gain:?}");
-        // The signs (orientation) are right.
-        assert!(fitted[0][0] > 0.0 && fitted[0][1] < 0.0 && fitted[1][1] > 0.0);
+    fn a_sighting_the_model_does_not_believe_is_set_aside() {
+        let gain = [[0.03, 0.0], [0.0, 0.03]];
+        let target = [320.0, 240.0];
+        let spot = |at: Vec2| Spot {
+            at,
+            whole: true,
+            signal: 100.0,
+            scatter: 0.5,
+        };
+        let stepped = |miss: Vec2| {
+            let mut servo = Servo::new(1000.0, [50.0, 20_000.0], Some(gain));
+            servo.observe([0.0, 0.0], Some(spot([100.0, 100.0])), target, 480.0);
+            let tilt = servo.next(target).expect("a step");
+            let at = carried(gain, [0.0, 0.0], [100.0, 100.0], tilt);
+            let seen = spot([at[0] + miss[0], at[1] + miss[1]]);
+            servo.observe(tilt, Some(seen), target, 480.0);
+            servo.gain().expect("still known")
+        };
+        // Where a response a tenth stronger along x puts it: believed, and learned.
+        let tilt_x = {
+            let mut servo = Servo::new(1000.0, [50.0, 20_000.0], Some(gain));
+            servo.observe([0.0, 0.0], Some(spot([100.0, 100.0])), target, 480.0);
+            servo.next(target).expect("a step")[0]
+        };
+        let learned = stepped([0.003 * tilt_x, 0.0]);
+        assert!(
+            (learned[0][0] - 0.033).abs() < 0.002,
+            "{learned:?} after a step of {tilt_x}"
+        );
+        // Another light 300 px off, taken for the spot: set aside, the response stays.
+        let kept = stepped([300.0, 0.0]);
+        for (row, want) in kept.iter().zip(gain) {
+            for (g, w) in row.iter().zip(want) {
+                assert!((g - w).abs() < 1e-9, "{kept:?}");
+            }
+        }
     }
 }
