@@ -10,39 +10,11 @@
 use optalign_optics::Frame;
 
 use super::model::{Vec2, distance};
+use super::tuning::{
+    BACKDROPS_RESIDUE_SHARE, BESIDE_SHARE, CLEAR_RADII, COME_SHARE, HOLE_SHARE, KEPT_SHARE,
+    OWN_LIGHT_NOISES,
+};
 use crate::imaging::{Backdrop, Beam, Picture, changes, find_beams};
-
-/// Another feature counts as light beside the beam with at least this share of its light.
-const BESIDE_SHARE: f64 = 0.3;
-
-/// A throw moves the beam this many of its radii ...
-pub const THROW_RADII: f64 = 4.0;
-
-/// ... and is clear of where it was when its two places in the frames' difference lie at
-/// least this many of its radii apart, and the throws made moved it that far by the
-/// response (where its tails overlap, a few per cent of its peak stays in the backdrop).
-/// Its radius is the largest it shows: in the spot thrown, where it left or where it came
-/// (a noisy or speckled spot is seen as fragments smaller than the beam).
-const CLEAR_RADII: f64 = 2.5;
-
-/// A change in a throw's difference counts with this share of the strongest feature's
-/// light (a beam's faint speckle halo included) ...
-const COME_SHARE: f64 = 0.05;
-
-/// ... unless it lies inside a feature of the picture before with less than this share
-/// of its light.
-const RESIDUE_SHARE: f64 = 0.3;
-
-/// A hole with this share of the backdrop's strongest feature's light makes it stale.
-const HOLE_SHARE: f64 = 0.3;
-
-/// Light this many noise deviations above the backdrop is the frame's own, left out when
-/// holes are looked for.
-const OWN_LIGHT_NOISES: f64 = 3.0;
-
-/// A backdrop holds when taking it off the frame before the throw leaves the beam with
-/// this share of its light.
-const KEPT_SHARE: f64 = 0.3;
 
 /// One place's backdrop.
 #[derive(Default)]
@@ -213,7 +185,7 @@ impl Backdrops {
                     c.signal >= COME_SHARE * reference
                         && !features.iter().any(|f| {
                             distance(f.centre, c.centre) < f.size()
-                                && c.signal < RESIDUE_SHARE * f.signal
+                                && c.signal < BACKDROPS_RESIDUE_SHARE * f.signal
                         })
                 })
                 .copied()

@@ -6,6 +6,7 @@
 //! half the band.
 
 use super::model::Vec2;
+use super::tuning::{PLAY_GRID_POINTS, PLAY_PASSES, PLAY_REFINED_MINIMA, PLAY_ROUNDS};
 
 /// The play of a two-axis mount: the dead band of each axis, steps, and where in it the
 /// load sat when the mount started, in half bands from the first command (-1: the gears
@@ -76,16 +77,6 @@ pub fn widest_band(path: &[Vec2]) -> Vec2 {
     widest
 }
 
-/// Grid points per search pass.
-const GRID_POINTS: usize = 33;
-
-/// Passes per parameter: the first over its whole range, each later over two cells of
-/// the previous grid around its best.
-const PASSES: usize = 4;
-
-/// Rounds over the parameters (each searched with the others held at their best so far).
-const ROUNDS: usize = 3;
-
 /// One parameter of a play searched for.
 #[derive(Clone, Copy)]
 enum Parameter {
@@ -110,9 +101,6 @@ impl Parameter {
     }
 }
 
-/// Local minima of the first grid refined per parameter, the lowest first.
-const REFINED_MINIMA: usize = 3;
-
 /// The play on `axes` (bands from 0 to `widest`, starts from -1 to 1) that minimises
 /// `misfit`, starting from `from`, one parameter at a time: a grid over its range, the
 /// grid's lowest local minima refined, and of the values whose misfit is within
@@ -129,7 +117,7 @@ pub fn best_play(
     misfit: impl Fn(Play) -> f64,
 ) -> Play {
     let mut best = from;
-    for _ in 0..ROUNDS {
+    for _ in 0..PLAY_ROUNDS {
         for &axis in axes {
             for parameter in [Parameter::Band, Parameter::Start] {
                 best = best_value(best, axis, parameter, widest[axis], tolerance, &misfit);
@@ -155,8 +143,8 @@ fn best_value(
         play
     };
     let (floor, ceiling) = parameter.range(widest);
-    let cell = (ceiling - floor) / (GRID_POINTS - 1) as f64;
-    let grid: Vec<(f64, f64)> = (0..GRID_POINTS)
+    let cell = (ceiling - floor) / (PLAY_GRID_POINTS - 1) as f64;
+    let grid: Vec<(f64, f64)> = (0..PLAY_GRID_POINTS)
         .map(|i| floor + cell * i as f64)
         .map(|value| (value, misfit(at(value))))
         .collect();
@@ -172,12 +160,12 @@ fn best_value(
     minima.sort_by(|a, b| a.1.total_cmp(&b.1));
     let mut current = base;
     let mut candidates = vec![(parameter.of(&mut current)[axis], misfit(base))];
-    for &(value, value_misfit) in minima.iter().take(REFINED_MINIMA) {
+    for &(value, value_misfit) in minima.iter().take(PLAY_REFINED_MINIMA) {
         let (mut centre, mut lowest, mut width) = (value, value_misfit, cell);
-        for _ in 1..PASSES {
+        for _ in 1..PLAY_PASSES {
             let (low, high) = ((centre - width).max(floor), (centre + width).min(ceiling));
-            width = (high - low) / (GRID_POINTS - 1) as f64;
-            for i in 0..GRID_POINTS {
+            width = (high - low) / (PLAY_GRID_POINTS - 1) as f64;
+            for i in 0..PLAY_GRID_POINTS {
                 let value = low + width * i as f64;
                 let value_misfit = misfit(at(value));
                 if value_misfit < lowest {

@@ -28,71 +28,19 @@
 use nalgebra::{Matrix2, Vector2};
 use optalign_optics::{Frame, Station};
 
-use super::backdrops::{Backdrops, THROW_RADII, Throw, Thrown};
+use super::backdrops::{Backdrops, Throw, Thrown};
 use super::bench::chi2_quantile;
 use super::model::{Affine, Tracker, Vec2, carried, column_norm, distance, square_rings};
 use super::see::{View, motion, stationary_pairs};
 use super::servo::{Servo, Spot, useful_probe};
-use super::tuning::{DONE_CONFIDENCE, MIN_NOISE_PX};
+use super::tuning::{
+    DONE_CONFIDENCE, DONE_SHARE, FAR_SEARCH_OVERLAP, FAR_SEARCH_RINGS, MAX_FAR_STEPS,
+    MAX_SEARCH_SHARE, MAX_THROWS, MIN_NOISE_PX, MIN_REMAINING_TO_THROW, MOVED_SHARE,
+    NEAR_CENTRED_SHARE, NEAR_REPEATS, PASS_SHARE, RELAY_CAUTIOUS_SHARE, RELAY_PROBE_SHARES,
+    RELAY_SEARCH_GRID_SHARE, SEARCH_GROWTH, STRAY_RADII, THROW_RADII, WHOLE_ENOUGH_EDGE,
+};
 use crate::imaging::Beam;
 use crate::task::{BenchGeometry, RelayAction, RelayLimits};
-
-/// The first probe tilts an axis by this share of the cumulative range (both sides).
-const CAUTIOUS_SHARE: f64 = 1.0 / 32.0;
-
-/// Probes and steps stay within these shares of the cumulative range.
-const PROBE_SHARES: Vec2 = [1.0 / 512.0, 1.0 / 4.0];
-
-/// While the spot has not been seen at the near station, the search grows by this factor.
-const SEARCH_GROWTH: f64 = 1.5;
-
-/// ... up to this share of the cumulative range (its grid's first ring then lies half-way
-/// to the bound; finer grids follow when the whole range was searched).
-const MAX_SEARCH_SHARE: f64 = 0.25;
-
-/// With the bench's geometry known, the search grid's points are two probe lengths apart,
-/// a probe moving the spot this share of the image's shorter side.
-const SEARCH_GRID_SHARE: f64 = 0.4;
-
-/// A spot at most this bright at the sensor's edge (share of its peak) is whole enough to
-/// steer by: its centroid is pulled in by a few pixels, which the next image corrects.
-const WHOLE_ENOUGH_EDGE: f64 = 0.3;
-
-/// Upstream far stations pass when the spot is within this share of the task's centring
-/// tolerance; C8 (done) within the tighter share.
-const PASS_SHARE: f64 = 0.6;
-const DONE_SHARE: f64 = 0.4;
-
-/// The near station is centred within this share of the task's centring tolerance (the
-/// far station magnifies what is left by the lever ratio).
-const NEAR_CENTRED_SHARE: f64 = 0.1;
-
-/// A near servo sent to the same load this many times before is going round in a loop.
-const NEAR_REPEATS: usize = 2;
-
-/// Steps at a far station before going back to the near station to start again.
-const MAX_FAR_STEPS: usize = 10;
-
-/// A spot not seen at the far station is looked for in views around the expected one, in
-/// rings of this many views' widths and heights ...
-const FAR_SEARCH_RINGS: i32 = 2;
-
-/// ... this share of an image apart, so that neighbouring views overlap.
-const FAR_SEARCH_OVERLAP: f64 = 0.8;
-
-/// A feature that moved with a tilt is the beam only with at least this share of the
-/// strongest feature's light.
-const MOVED_SHARE: f64 = 0.3;
-
-/// A throw (to learn a station's stationary light) is made only with more evaluations
-/// than this left.
-const MIN_REMAINING_TO_THROW: usize = 10;
-
-/// At most this many throws go one after the other to clear the spot of itself.
-const MAX_THROWS: usize = 3;
-
-/// A stationary feature is remembered within this many beam radii.
-const STRAY_RADII: f64 = 0.5;
 
 /// What the agent is doing for the current mirror.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -242,7 +190,8 @@ impl RelayAgent {
             .zip(self.image_side_px)
         {
             Some((response, side)) => {
-                let probe = (SEARCH_GRID_SHARE * side / response).clamp(1.0, self.widest_search());
+                let probe =
+                    (RELAY_SEARCH_GRID_SHARE * side / response).clamp(1.0, self.widest_search());
                 Tracker::new([probe, probe], [[-bound, bound], [-bound, bound]])
             }
             None => new_tracker(&self.limits),
@@ -420,7 +369,7 @@ impl RelayAgent {
     /// range.
     fn probe_bounds(&self) -> Vec2 {
         let range = 2.0 * f64::from(self.limits.max_cumulative);
-        PROBE_SHARES.map(|share| share * range)
+        RELAY_PROBE_SHARES.map(|share| share * range)
     }
 
     /// The next action of a throw under way (`None`: none is): on the frame after a
@@ -558,7 +507,7 @@ impl RelayAgent {
         let known = self.assumed_gain(station).map(column_norm);
         let probe = match (self.nominal_response(station).or(known), side) {
             (Some(response), Some(side)) => useful_probe(side, response),
-            _ => CAUTIOUS_SHARE * range,
+            _ => RELAY_CAUTIOUS_SHARE * range,
         };
         Servo::new(probe, bounds, gain)
     }
@@ -929,14 +878,14 @@ impl RelayAgent {
 
 fn new_tracker(limits: &RelayLimits) -> Tracker {
     let bound = f64::from(limits.max_cumulative);
-    let probe = CAUTIOUS_SHARE * 2.0 * bound;
+    let probe = RELAY_CAUTIOUS_SHARE * 2.0 * bound;
     Tracker::new([probe, probe], [[-bound, bound], [-bound, bound]])
 }
 
 /// A mirror's tracker: commands within the range, a fit once they span the shortest probe.
 fn new_mount(limits: &RelayLimits) -> Tracker {
     let bound = f64::from(limits.max_cumulative);
-    let shortest = PROBE_SHARES[0] * 2.0 * bound;
+    let shortest = RELAY_PROBE_SHARES[0] * 2.0 * bound;
     let mut mount = Tracker::new([shortest; 2], [[-bound, bound], [-bound, bound]]);
     mount.min_spread = shortest;
     mount

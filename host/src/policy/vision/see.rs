@@ -8,6 +8,7 @@
 use optalign_optics::Frame;
 
 use super::model::{Vec2, distance};
+use super::tuning::{MERGED_LIGHT, MERGED_SIZE, SEE_RESIDUE_SHARE};
 use crate::imaging::{Beam, Changes, Picture, find_beams, registered_changes};
 
 /// One frame, measured.
@@ -124,19 +125,6 @@ fn locate(blob: &Beam, beams: &[Beam], moving: &[bool]) -> Seen {
         )
 }
 
-/// The beam that moved between a place and the next is the same beam: a detection much
-/// larger than its counterpart holds more than the beam (it had merged with another; a
-/// detection the border cuts is smaller, so only whole ones compare) ...
-const MERGED_SIZE: f64 = 1.6;
-
-/// ... as does one with much more light than the change, when the beam moved clear of
-/// where it was (or came from or went out of the view).
-const MERGED_LIGHT: f64 = 1.4;
-
-/// A change within a stationary feature carrying less than this share of its light is
-/// residue of the feature's jitter.
-const RESIDUE_SHARE: f64 = 0.25;
-
 /// The beam that moved from `before` to `after`: found in the frames' difference (what
 /// stayed cancels, whatever merged with it), measured on the views' own beams that did
 /// not stay put (`steady`: how far a stationary feature may seem to move). When several
@@ -185,7 +173,7 @@ pub fn motion_in(
         pairs.iter().map(side).any(|i| {
             let stayed = &beams[i];
             distance(blob.centre, stayed.centre) < stayed.size()
-                && blob.signal < RESIDUE_SHARE * stayed.signal
+                && blob.signal < SEE_RESIDUE_SHARE * stayed.signal
         })
     };
     // The changes that may be the moved beam on one side of the move: not residue of the

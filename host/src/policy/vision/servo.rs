@@ -19,24 +19,10 @@ use nalgebra::Matrix2;
 
 use super::bench::Response;
 use super::model::{Affine, Vec2, column_norm, distance};
-use super::tuning::{GAIN_PRIOR_SHARE, PRIOR_OFFSET_PX};
-
-/// A cut spot counts as this many image shorter sides farther than any whole one, less
-/// the share of a whole spot's light it shows.
-const CUT_PENALTY_SIDES: f64 = 1.0;
-
-/// A probe that moved the spot less than this share of the image's shorter side is grown.
-const MIN_MOVE_SHARE: f64 = 0.03;
-
-/// Growth (and shrinking) of probes and of the trust radius.
-const GROWTH: f64 = 2.0;
-
-/// A probe sized from a response aims to move the spot this share of the image's shorter
-/// side.
-const PROBE_VIEW_SHARE: f64 = 0.15;
-
-/// The trust radius starts at this many probe lengths.
-const START_RADIUS_PROBES: f64 = 4.0;
+use super::tuning::{
+    CUT_PENALTY_SIDES, GAIN_PRIOR_SHARE, MIN_MOVE_SHARE, PRIOR_OFFSET_PX, SERVO_GROWTH,
+    SERVO_PROBE_VIEW_SHARE, START_RADIUS_PROBES,
+};
 
 /// Where the spot showed.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -266,7 +252,7 @@ impl Servo {
                 flipped: true,
             };
             if flipped {
-                self.probe = (self.probe / GROWTH).max(self.bounds[0]);
+                self.probe = (self.probe / SERVO_GROWTH).max(self.bounds[0]);
             }
             return;
         }
@@ -274,7 +260,7 @@ impl Servo {
         if let (Pending::Probe { axis, .. }, Some(s), Some(best)) = (self.pending, seen, self.best)
         {
             if distance(s.at, best.spot.at) < MIN_MOVE_SHARE * side {
-                self.probe = (self.probe * GROWTH).min(self.bounds[1]);
+                self.probe = (self.probe * SERVO_GROWTH).min(self.bounds[1]);
             } else if (tilt[axis] - best.tilt[axis]).abs() > 0.5 {
                 self.probed[axis] = true;
                 self.cut |= !(s.whole && best.spot.whole);
@@ -309,10 +295,10 @@ impl Servo {
             let error = self.error(&spot, target, side);
             self.best = Some(Best { tilt, spot, error });
             if self.pending == Pending::Step {
-                self.radius = (self.radius * GROWTH).min(self.bounds[1]);
+                self.radius = (self.radius * SERVO_GROWTH).min(self.bounds[1]);
             }
         } else if self.pending == Pending::Step {
-            self.radius = (self.radius / GROWTH).max(self.bounds[0]);
+            self.radius = (self.radius / SERVO_GROWTH).max(self.bounds[0]);
         }
         if let Some(s) = seen {
             self.last = Some((tilt, s));
@@ -375,7 +361,7 @@ impl Servo {
                     }
                     self.refuted_at = Some(best.tilt);
                     if !best.spot.whole {
-                        self.probe = (self.probe * GROWTH).min(self.bounds[1]);
+                        self.probe = (self.probe * SERVO_GROWTH).min(self.bounds[1]);
                     }
                     return self.next(target);
                 }
@@ -389,7 +375,7 @@ impl Servo {
 /// The probe, steps, that moves a spot a useful share of an image whose shorter side is
 /// `side` px at a response of `response` px per step.
 pub fn useful_probe(side: f64, response: f64) -> f64 {
-    PROBE_VIEW_SHARE * side / response
+    SERVO_PROBE_VIEW_SHARE * side / response
 }
 
 /// The covariance of a sighting's centre, px².

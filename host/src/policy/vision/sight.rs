@@ -8,44 +8,12 @@
 
 use super::model::{Sighting, Vec2, distance};
 use super::see::View;
-use super::tuning::MIN_NOISE_PX;
+use super::tuning::{
+    CLEAR_OF_BORDER_RADII, DEFAULT_RADIUS_SHARE, DEFAULT_STEADY_RADII, MAX_EXTRAPOLATION,
+    MAX_MISFIT, MIN_NOISE_PX, OVERLAP_RADII, SIGHT_MAX_SIZE_RATIO, SLIVER_EDGE, STEADY_SPREAD,
+    TOUCH_BRIGHTER,
+};
 use crate::imaging::Beam;
-
-/// Before any beam was measured, a beam is taken to be this share of the image's shorter
-/// side (only used until the first view with a beam).
-const DEFAULT_RADIUS_SHARE: f64 = 0.05;
-
-/// Until jitter has been measured, stationary features may seem to move this many beam
-/// radii between frames.
-const DEFAULT_STEADY_RADII: f64 = 0.15;
-
-/// Stationary features may seem to move this many times their measured RMS displacement.
-const STEADY_SPREAD: f64 = 4.0;
-
-/// A spot fit worse than this (RMS share of the peak) is two spots merged or not a
-/// Gaussian beam: its centre is not extrapolated.
-const MAX_MISFIT: f64 = 0.1;
-
-/// A fitted centre is trusted up to this many fitted radii outside the image.
-const MAX_EXTRAPOLATION: f64 = 0.4;
-
-/// A beam larger than this many times its known radius has merged with something.
-const MAX_SIZE_RATIO: f64 = 1.6;
-
-/// A beam closer than this many summed radii to another known beam overlaps it.
-const OVERLAP_RADII: f64 = 1.2;
-
-/// A neighbouring detection this many times brighter than a detection at its peak holds
-/// the light the detection was split from.
-const TOUCH_BRIGHTER: f64 = 1.5;
-
-/// A detection still this share of its peak bright at the border is a sliver of light
-/// that goes on beyond the image.
-const SLIVER_EDGE: f64 = 0.5;
-
-/// A beam whose centre lies this many of its major radii from every border shows with
-/// dark all round it.
-const CLEAR_OF_BORDER_RADII: f64 = 2.0;
 
 /// What the images taught about this bench.
 #[derive(Clone, Debug, Default)]
@@ -215,8 +183,8 @@ pub fn sight(
     // mean radius may not grow much.
     let longer = scales
         .known_major(k)
-        .is_some_and(|major| beam.radii[0] > MAX_SIZE_RATIO * major);
-    let oversized = longer || own.is_some_and(|r| beam.size() > MAX_SIZE_RATIO * r);
+        .is_some_and(|major| beam.radii[0] > SIGHT_MAX_SIZE_RATIO * major);
+    let oversized = longer || own.is_some_and(|r| beam.size() > SIGHT_MAX_SIZE_RATIO * r);
     let radius = own.unwrap_or(beam.size());
     let overlapping =
         other.is_some_and(|(p, r)| distance(beam.centre, p) < OVERLAP_RADII * (r + radius));
@@ -230,7 +198,7 @@ pub fn sight(
     let trusted = beam.fit.filter(|f| {
         let outside = |c: f64, side: f64| (-c).max(c - side).max(0.0);
         let beyond = outside(f.centre[0], w).hypot(outside(f.centre[1], h));
-        let alike = own.is_none_or(|r| (f.radius / r - 1.0).abs() < MAX_SIZE_RATIO - 1.0);
+        let alike = own.is_none_or(|r| (f.radius / r - 1.0).abs() < SIGHT_MAX_SIZE_RATIO - 1.0);
         // Cut by two borders at once, too little of the spot shows to extrapolate.
         let near = |c: f64, side: f64| c.min(side - c) < f.radius;
         let corner = near(f.centre[0], w) && near(f.centre[1], h);
@@ -271,7 +239,7 @@ mod tests {
         let whole = two_lobed([320.0, 240.0]);
         assert_eq!(whole.beams.len(), 1, "{:?}", whole.beams);
         let lobe_length = lobe.beams[0].radii[0];
-        assert!(whole.beams[0].radii[0] > MAX_SIZE_RATIO * lobe_length);
+        assert!(whole.beams[0].radii[0] > SIGHT_MAX_SIZE_RATIO * lobe_length);
         let seen = sight(&whole.beams[0], &whole, &scales, 0, None);
         assert!(
             matches!(seen, Sighting::Clean(c) if distance(c, [320.0, 240.0]) < 1.0),
