@@ -21,11 +21,26 @@ pub fn chi2_quantile(p: f64) -> f64 {
 /// The median of the chi-square distribution of two degrees of freedom (2 ln 2).
 const CHI2_MEDIAN: f64 = 2.0 * std::f64::consts::LN_2;
 
-/// Whether a zero-mean 2-D Gaussian error of covariance `cov` (px²) lies within
-/// `tolerance` px with at least probability `confidence` (bounded by its larger axis).
-pub fn sure_within(cov: Matrix2<f64>, tolerance: f64, confidence: f64) -> bool {
+/// The squared Mahalanobis radius a 2-D error falls within at probability `p`, when its
+/// covariance is known up to a scale estimated from residuals with `freedom` degrees of
+/// freedom (0: known outright). The error over its estimated scale is then Student
+/// distributed, d²/2 follows Fisher's F(2, ν), whose distribution function
+/// 1 - (1 + 2x/ν)^(-ν/2) inverts in closed form; as ν grows this is the chi-square
+/// quantile.
+pub fn quantile(p: f64, freedom: usize) -> f64 {
+    if freedom == 0 {
+        return chi2_quantile(p);
+    }
+    let v = freedom as f64;
+    v * ((1.0 - p).powf(-2.0 / v) - 1.0)
+}
+
+/// Whether a zero-mean 2-D error of covariance `cov` (px²), its scale estimated with
+/// `freedom` degrees of freedom ([`quantile`]), lies within `tolerance` px with at least
+/// probability `confidence` (bounded by its larger axis).
+pub fn sure_within(cov: Matrix2<f64>, tolerance: f64, confidence: f64, freedom: usize) -> bool {
     let largest = cov.symmetric_eigenvalues().max();
-    largest * chi2_quantile(confidence) <= tolerance * tolerance
+    largest * quantile(confidence, freedom) <= tolerance * tolerance
 }
 
 /// The observation matrix of a command (relative to the model's origin).
@@ -212,14 +227,16 @@ fn core(points: &[(Vec2, Vec2)], noise: f64, min_keep: usize) -> Option<Response
 /// model of the [`CORE_SHARE`] of them it fits best is tested by chi-square, and those
 /// that fail are set aside, unless fewer than `min_keep` would remain. The scatter the
 /// sightings show beyond `noise` (a screw's pitch error, hysteresis: the bench, not a
-/// foreign beam) widens the test first, from the median of the innovations.
+/// foreign beam) widens the test: first from the median of the innovations, then from the
+/// residuals of the sightings kept.
 pub fn robust_fit(points: &[(Vec2, Vec2)], noise: f64, min_keep: usize) -> Option<Fit> {
     let full = model_of(points.iter(), noise);
     let Some(core) = core(points, noise, min_keep) else {
+        let widening = residual_widening(&full, points, noise);
         return Some(Fit {
             response: full,
             kept: vec![true; points.len()],
-            widening: 1.0,
+            widening,
         });
     };
     let r = Matrix2::identity() * noise * noise;
@@ -229,16 +246,39 @@ pub fn robust_fit(points: &[(Vec2, Vec2)], noise: f64, min_keep: usize) -> Optio
         .collect();
     let mut sorted = surprises.clone();
     sorted.sort_by(f64::total_cmp);
-    let widening = (sorted[sorted.len() / 2] / CHI2_MEDIAN).max(1.0);
+    // The median innovation against the core starts the scatter's estimate; the core fits
+    // its own sightings closer than a new one, so the estimate is then taken again from
+    // the residuals of the sightings the test kept, until it no longer grows.
+    let mut widening = (sorted[sorted.len() / 2] / CHI2_MEDIAN).max(1.0);
+    for _ in 0..WIDENING_ROUNDS {
+        let gate = chi2_quantile(GATE_CONFIDENCE) * widening;
+        let kept: Vec<bool> = surprises.iter().map(|d2| *d2 <= gate).collect();
+        if kept.iter().filter(|k| **k).count() < min_keep {
+            return Some(Fit {
+                widening: widening.max(residual_widening(&full, points, noise)),
+                response: full,
+                kept: vec![true; points.len()],
+            });
+        }
+        let subset: Vec<(Vec2, Vec2)> = points
+            .iter()
+            .zip(&kept)
+            .filter(|(_, k)| **k)
+            .map(|(p, _)| *p)
+            .collect();
+        let response = model_of(subset.iter(), noise);
+        let refreshed = residual_widening(&response, &subset, noise);
+        if refreshed <= widening * WIDENING_SETTLED {
+            return Some(Fit {
+                response,
+                kept,
+                widening: widening.max(refreshed),
+            });
+        }
+        widening = refreshed;
+    }
     let gate = chi2_quantile(GATE_CONFIDENCE) * widening;
     let kept: Vec<bool> = surprises.iter().map(|d2| *d2 <= gate).collect();
-    if kept.iter().filter(|k| **k).count() < min_keep {
-        return Some(Fit {
-            response: full,
-            kept: vec![true; points.len()],
-            widening,
-        });
-    }
     let response = model_of(
         points
             .iter()
@@ -252,6 +292,24 @@ pub fn robust_fit(points: &[(Vec2, Vec2)], noise: f64, min_keep: usize) -> Optio
         kept,
         widening,
     })
+}
+
+/// Rounds of re-estimating the scatter from the sightings kept (each round keeps at least
+/// as many: a few suffice) ...
+const WIDENING_ROUNDS: usize = 4;
+
+/// ... stopped once it grows by less than this factor.
+const WIDENING_SETTLED: f64 = 1.05;
+
+/// How many times the variance `noise`² the sightings `points` scatter by about `model`
+/// fitted to all of them (at least 1): the residual variance over the degrees of freedom the
+/// six numbers leave (the unbiased estimate of least squares), 1 while there are none.
+fn residual_widening(model: &Response, points: &[(Vec2, Vec2)], noise: f64) -> f64 {
+    let freedom = (2 * points.len()).saturating_sub(6);
+    if freedom == 0 {
+        return 1.0;
+    }
+    (squares(model, points) / (freedom as f64 * noise * noise)).max(1.0)
 }
 
 /// A model fitted to sightings by [`robust_fit`].
@@ -270,6 +328,31 @@ impl Fit {
     pub fn believes(&self, command: Vec2, image: Vec2, noise: f64) -> bool {
         let r = Matrix2::identity() * noise * noise * self.widening;
         self.response.believes(command, image, r)
+    }
+
+    /// The covariance (px²) of where the feature really lands for `command`, the model
+    /// fitted with a scatter of `noise` px per sighting: what the model does not know,
+    /// scaled by the scatter the sightings showed, and that scatter's share beyond `noise`
+    /// (the bench's own: a screw's pitch error, hysteresis, which a new command meets
+    /// afresh and no number of sightings averages away).
+    pub fn error_at(&self, command: Vec2, noise: f64) -> Option<Matrix2<f64>> {
+        let (_, cov) = self.response.predict(command)?;
+        let bench = (self.widening - 1.0) * noise * noise;
+        Some(cov * self.widening + Matrix2::identity() * bench)
+    }
+
+    /// Whether the feature lands within `tolerance` px of the model's prediction for
+    /// `command` with probability `confidence` ([`Self::error_at`]; while the sightings
+    /// scatter beyond `noise`, that scatter is an estimate from the residuals' degrees of
+    /// freedom, and the test allows for how little a few of them pin it).
+    pub fn sure_at(&self, command: Vec2, noise: f64, tolerance: f64, confidence: f64) -> bool {
+        let freedom = if self.widening > 1.0 {
+            (2 * self.kept.iter().filter(|k| **k).count()).saturating_sub(6)
+        } else {
+            0
+        };
+        self.error_at(command, noise)
+            .is_some_and(|cov| sure_within(cov, tolerance, confidence, freedom))
     }
 }
 
@@ -312,8 +395,8 @@ mod tests {
         assert!((fitted.offset[0] - 320.0).abs() < 1e-3, "{fitted:?}");
         assert!(spreads.windows(2).all(|w| w[1] < w[0]), "{spreads:?}");
         let (_, cov) = model.predict([200.0, 200.0]).unwrap();
-        assert!(sure_within(cov, 3.0, 0.95), "{cov}");
-        assert!(!sure_within(cov, 0.1, 0.95), "{cov}");
+        assert!(sure_within(cov, 3.0, 0.95, 0), "{cov}");
+        assert!(!sure_within(cov, 0.1, 0.95, 0), "{cov}");
     }
 
     #[test]
@@ -368,6 +451,49 @@ mod tests {
         assert!(!fit.kept[5]);
         let fitted = fit.response.mean().unwrap();
         assert!((fitted.gain[0][0] - 0.05).abs() < 0.005, "{fitted:?}");
+    }
+
+    #[test]
+    fn a_scale_from_few_residuals_asks_for_a_wider_radius() {
+        // Fisher's F(2, 2) and F(2, 10) at 0.95 are 19.0 and 4.103 (tables); d² is twice F.
+        assert!((quantile(0.95, 2) - 38.0).abs() < 1e-9);
+        assert!((quantile(0.95, 10) - 8.206).abs() < 1e-2);
+        // Known outright, or pinned by many residuals: the chi-square quantile.
+        assert_eq!(quantile(0.95, 0), chi2_quantile(0.95));
+        assert!((quantile(0.95, 100_000) - chi2_quantile(0.95)).abs() < 1e-3);
+    }
+
+    #[test]
+    fn the_error_at_a_new_command_carries_the_scatter_the_sightings_showed() {
+        let grid = |scatter: f64| -> Vec<(Vec2, Vec2)> {
+            (0..9)
+                .map(|i| {
+                    let u = [(i % 3) as f64 * 300.0, (i / 3) as f64 * 300.0];
+                    let p = truth().predict(u);
+                    (
+                        u,
+                        [p[0] + scatter * wobble(i), p[1] + scatter * wobble(i + 30)],
+                    )
+                })
+                .collect()
+        };
+        let sd = |fit: &Fit| {
+            let cov = fit.error_at([300.0, 300.0], 0.5).unwrap();
+            cov.symmetric_eigenvalues().max().sqrt()
+        };
+        // Sightings as exact as the detector says: the error is what the fit does not know,
+        // well below the detector's own scatter.
+        let exact = robust_fit(&grid(0.0), 0.5, 4).unwrap();
+        assert_eq!(exact.widening, 1.0);
+        assert!(sd(&exact) < 0.5, "{}", sd(&exact));
+        // Sightings scattered by several pixels (a screw's pitch error): a new command meets
+        // that scatter too, whatever the detector says of one centre.
+        let scattered = robust_fit(&grid(5.0), 0.5, 4).unwrap();
+        assert!(scattered.widening > 10.0, "{}", scattered.widening);
+        assert!(sd(&scattered) > 1.5, "{}", sd(&scattered));
+        // With no more sightings than numbers to fit, nothing shows a scatter.
+        let three: Vec<(Vec2, Vec2)> = grid(5.0).into_iter().take(3).collect();
+        assert_eq!(robust_fit(&three, 0.5, 4).unwrap().widening, 1.0);
     }
 
     #[test]

@@ -19,7 +19,7 @@ use optalign_optics::Frame;
 use super::model::{SAME_STEP, Sighting, Tracker, Vec2, distance};
 use super::see::{Seen, View, alike, motion_in, stationary_pairs};
 use super::sight::{Scales, sight};
-use super::tuning::CAVITY_TOLERANCE_RADII;
+use super::tuning::{CAVITY_TOLERANCE_RADII, DONE_CONFIDENCE};
 use crate::imaging::{
     Beam, Changes, core_centre, core_radius, nearest, registered_changes_sized, scene_shift,
 };
@@ -153,7 +153,7 @@ impl CavityAgent {
             .unwrap_or(self.command);
         let settled = self.checks >= MAX_CHECKS && self.last_check_seen;
         let tolerance = CAVITY_TOLERANCE_RADII * self.scales.radius(SECONDARY);
-        let sure = confirmed && self.tracker.sure_at(aim, tolerance);
+        let sure = confirmed && self.tracker.sure_at(aim, tolerance, DONE_CONFIDENCE);
         if sure || remaining <= 2 || settled {
             return self.send(aim, Step::Check(None), true);
         }

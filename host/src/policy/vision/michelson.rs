@@ -7,15 +7,19 @@
 //! probe after the first also steers the beam towards the centre along what is already
 //! known, so it stays in view. While the second mirror is probed, the first mirror's beam
 //! is parked out of the way. With both maps known it places the two beams apart on either
-//! side of the centre, where both are seen whole: when they land where the maps predicted
-//! it commands both to the centre (where they overlap in fringes) and declares done;
-//! otherwise it refits (estimating lost motion from reversals) and checks again.
+//! side of the centre, where both are seen whole. Each checked beam is believed when the
+//! chi-square test of its innovation passes; the maps are refitted with it (estimating lost
+//! motion from reversals), and the agent commands both beams to the centre (where they
+//! overlap in fringes) and declares done when the refitted models put each within half the
+//! task's tolerance there at a stated confidence, allowing for the scatter the sightings
+//! showed, and the models before the check agree; otherwise it checks again.
 
 use optalign_optics::Frame;
 
 use super::model::{SAME_STEP, Sighting, Tracker, Vec2, column_norm, distance};
 use super::see::{Motion, Seen, View, motion, stationary_pairs};
 use super::sight::{Scales, sight, touches};
+use super::tuning::DONE_CONFIDENCE;
 use crate::imaging::Beam;
 use crate::task::{Action, MichelsonLimits};
 
@@ -81,15 +85,6 @@ const WHOLE_RADII: f64 = 1.5;
 /// centre to the other side of it.
 const RELOCATE_SHARE: f64 = 1.5;
 
-/// A checked beam within this share of its radius of its prediction confirms the map
-/// (or within the measurement's own uncertainty, when that is larger).
-const CONFIRM_RADII: f64 = 0.025;
-
-/// A check whose larger miss is within this many radii and not below this share of the
-/// previous check's has stopped improving: the map is as good as the bench allows.
-const STALLED_RADII: f64 = 0.1;
-const STALLED_SHARE: f64 = 0.7;
-
 /// A beam found farther than this many radii from a beam's prediction is not that beam.
 const MATCH_RADII: f64 = 1.0;
 
@@ -142,10 +137,8 @@ pub struct MichelsonAgent {
     before: [Vec2; 2],
     last: Step,
     checks: usize,
-    /// The larger miss of the two beams at the last check, px.
-    last_miss: Option<f64>,
-    /// Where the last check found each beam, and for which command of its mirror.
-    last_found: [Option<(Vec2, Vec2)>; 2],
+    /// The task's tolerance of the summed distance of the two beams from the centre, px.
+    tolerance: f64,
     /// A beam the last check did not find where its map put it.
     missed: Option<usize>,
     /// Mirrors whose map was refuted: a check and then a relocation did not find the beam
@@ -182,8 +175,7 @@ impl MichelsonAgent {
             before: [[0.0; 2]; 2],
             last: Step::Start,
             checks: 0,
-            last_miss: None,
-            last_found: [None; 2],
+            tolerance: limits.success_error_px,
             missed: None,
             refuted: [false; 2],
             scales: Scales::default(),
@@ -582,28 +574,10 @@ impl MichelsonAgent {
         {
             return false;
         }
-        self.missed = found
-            .iter()
-            .position(Option::is_none)
-            .or_else(|| (0..2).find(|&k| self.stuck(k, found, predicted)));
-        self.last_found = [0, 1].map(|k| found[k].map(|c| (self.mirror(k), c)));
-        let within = found
-            .iter()
-            .zip(predicted)
-            .enumerate()
-            .all(|(k, (seen, p))| seen.is_some_and(|c| distance(c, p) < self.confirm_px(k)));
-        let miss = found
-            .iter()
-            .zip(predicted)
-            .map(|(seen, p)| seen.map_or(f64::INFINITY, |c| distance(c, p)))
-            .fold(0.0, f64::max);
-        // Checks that stopped improving have found what this bench's screws allow.
-        let radius = self.scales.radius(0).min(self.scales.radius(1));
-        let stalled = self
-            .last_miss
-            .is_some_and(|last| miss < STALLED_RADII * radius && miss > STALLED_SHARE * last);
-        self.last_miss = Some(miss);
-        let confirmed = within || stalled;
+        self.missed = found.iter().position(Option::is_none);
+        // Each beam where its map put it, by the chi-square test of the innovation.
+        let believed =
+            (0..2).all(|k| found[k].is_some_and(|c| self.trackers[k].believes(self.mirror(k), c)));
         let before_refit = self.trackers.clone();
         let mut relearned = false;
         for (k, seen) in found.iter().enumerate() {
@@ -616,39 +590,25 @@ impl MichelsonAgent {
             }
         }
         // A new estimate of the lost motion changes every prediction: it is checked first.
-        // So does a refit that moves where the final command puts a beam by more than a
-        // stalled check's miss: the final command comes from the maps as refitted.
-        let centre = view.centre();
-        let agree = (0..2).all(|k| {
-            let allowed = (STALLED_RADII * self.scales.radius(k)).max(self.confirm_px(k));
-            self.trackers[k]
+        believed && !relearned && self.sure_at_centre(view.centre(), &before_refit)
+    }
+
+    /// Whether the final command (both beams to `centre`) puts the beams within the task's
+    /// tolerance of it at [`DONE_CONFIDENCE`] (each within half of it at the square root of
+    /// that probability, the two beams' errors being independent), and the models as they
+    /// were before the last sightings (`before`) believe it puts them there: a refit that
+    /// moves the final command by more than the earlier model's uncertainty has not
+    /// settled.
+    fn sure_at_centre(&self, centre: Vec2, before: &[Tracker; 2]) -> bool {
+        let each = DONE_CONFIDENCE.sqrt();
+        (0..2).all(|k| {
+            let tracker = &self.trackers[k];
+            tracker
                 .command_for(centre, self.mirror(k))
-                .and_then(|u| before_refit[k].predict(u))
-                .is_none_or(|p| distance(p, centre) < allowed)
-        });
-        confirmed && !relearned && agree
-    }
-
-    /// Whether beam `k`, found off its prediction by more than the other beam (found
-    /// where the checked beams were `found`, predicted at `predicted`), sat there at the
-    /// last check for the same command too: checks that neither move its mirror nor correct
-    /// its map repeat the miss that keeps them from confirming, so the mirror is moved
-    /// alone (a relocation) to give its map new sightings.
-    fn stuck(&self, k: usize, found: [Option<Vec2>; 2], predicted: [Vec2; 2]) -> bool {
-        let (Some(seen), Some((command, then))) = (found[k], self.last_found[k]) else {
-            return false;
-        };
-        let miss = |i: usize| found[i].map_or(f64::INFINITY, |c| distance(c, predicted[i]));
-        let confirm = self.confirm_px(k);
-        distance(command, self.mirror(k)) < SAME_STEP
-            && distance(seen, then) < confirm
-            && miss(k) > confirm
-            && miss(k) >= miss(1 - k)
-    }
-
-    /// How close a checked beam must land to its prediction to confirm the map, px.
-    fn confirm_px(&self, k: usize) -> f64 {
-        (CONFIRM_RADII * self.scales.radius(k)).max(3.0 * self.scales.position_noise())
+                .is_some_and(|u| {
+                    tracker.sure_at(u, self.tolerance / 2.0, each) && before[k].believes(u, centre)
+                })
+        })
     }
 
     /// The clean centre of beam `k` nearest `point` in `view`, within the match radius,
@@ -912,6 +872,43 @@ impl MichelsonAgent {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::policy::vision::model::Affine;
+
+    fn truths() -> [Affine; 2] {
+        [
+            Affine {
+                offset: [700.0, 400.0],
+                gain: [[0.17, 0.012], [-0.01, -0.16]],
+            },
+            Affine {
+                offset: [1200.0, 700.0],
+                gain: [[-0.165, -0.015], [0.012, 0.155]],
+            },
+        ]
+    }
+
+    /// An agent that saw each beam at six commands, where `truths` put it, off by
+    /// `scatter(i)` px.
+    fn agent_with(truths: [Affine; 2], scatter: impl Fn(usize) -> f64) -> MichelsonAgent {
+        let mut agent = MichelsonAgent::new(&MichelsonLimits::default());
+        let commands = [
+            [0.0, 0.0],
+            [900.0, 0.0],
+            [900.0, 800.0],
+            [0.0, 800.0],
+            [-700.0, 300.0],
+            [400.0, -500.0],
+        ];
+        for (k, truth) in truths.iter().enumerate() {
+            for (i, u) in commands.into_iter().enumerate() {
+                agent.set_mirror(k, u);
+                let p = truth.predict(u);
+                let e = scatter(i);
+                agent.trackers[k].add_clean(u, [p[0] + e, p[1] - e]);
+            }
+        }
+        agent
+    }
 
     #[test]
     fn a_search_grid_tiles_the_image_along_each_axis() {
@@ -926,5 +923,33 @@ mod tests {
         let grid = search_grid(diagonal, [1920.0, 1080.0]);
         assert!((grid[0] - GRID_VIEW_SHARE * 1080.0 / 0.5).abs() < 1e-6);
         assert!((grid[1] - GRID_VIEW_SHARE * 1080.0 / 0.5).abs() < 1e-6);
+    }
+
+    #[test]
+    fn done_when_both_models_are_sure_at_the_centre_and_a_refit_moved_nothing() {
+        let centre = [960.0, 540.0];
+        let agent = agent_with(truths(), |_| 0.0);
+        let same = agent.trackers.clone();
+        assert!(agent.sure_at_centre(centre, &same));
+        // The models before the last sightings put the final command elsewhere (a refit
+        // changed the map): not settled.
+        let mut wrong = truths();
+        wrong[1].gain[0][0] *= 1.2;
+        let earlier = agent_with(wrong, |_| 0.0).trackers;
+        assert!(!agent.sure_at_centre(centre, &earlier));
+    }
+
+    #[test]
+    fn a_bench_that_scatters_beyond_the_tolerance_is_not_done() {
+        let centre = [960.0, 540.0];
+        // Exact but for tens of pixels of scatter from one command to the next (a screw's
+        // pitch error): a new command meets as much, more than the task's tolerance.
+        let agent = agent_with(truths(), |i| if i % 2 == 0 { 30.0 } else { -30.0 });
+        let same = agent.trackers.clone();
+        assert!(!agent.sure_at_centre(centre, &same));
+        // A scatter of a pixel is well within it.
+        let agent = agent_with(truths(), |i| if i % 2 == 0 { 1.0 } else { -1.0 });
+        let same = agent.trackers.clone();
+        assert!(agent.sure_at_centre(centre, &same));
     }
 }

@@ -6,11 +6,8 @@
 
 use std::ops::RangeInclusive;
 
-use nalgebra::Matrix2;
-
 use super::bench;
 use super::play::{self, Play};
-use super::tuning::DONE_CONFIDENCE;
 
 /// A 2-vector (motor steps or pixels).
 pub type Vec2 = [f64; 2];
@@ -441,23 +438,13 @@ impl Tracker {
         Some((fit, points))
     }
 
-    /// The covariance (px²) of where the model puts the feature once the mount is sent
-    /// from where it is now to `command`, from what the model does not know.
-    pub fn uncertainty(&self, command: Vec2) -> Option<Matrix2<f64>> {
-        Some(
-            self.response()?
-                .0
-                .response
-                .predict(self.settled(command))?
-                .1,
-        )
-    }
-
-    /// Whether the model puts the feature within `tolerance` px of where it predicts for
-    /// `command` at [`DONE_CONFIDENCE`].
-    pub fn sure_at(&self, command: Vec2, tolerance: f64) -> bool {
-        self.uncertainty(command)
-            .is_some_and(|cov| bench::sure_within(cov, tolerance, DONE_CONFIDENCE))
+    /// Whether the feature lands within `tolerance` px of where the model predicts once the
+    /// mount is sent from where it is now to `command`, with probability `confidence`: what
+    /// the model does not know and the bench's own scatter ([`bench::Fit::sure_at`]).
+    pub fn sure_at(&self, command: Vec2, tolerance: f64, confidence: f64) -> bool {
+        self.response().is_some_and(|(fit, _)| {
+            fit.sure_at(self.settled(command), self.noise, tolerance, confidence)
+        })
     }
 
     /// Whether a sighting at `image` for `command` (the mount sent there from where it
@@ -1000,6 +987,7 @@ impl Tracker {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::policy::vision::tuning::DONE_CONFIDENCE;
 
     #[test]
     fn fits_an_exact_affine_map() {
@@ -1168,7 +1156,7 @@ mod tests {
         // not to within a tenth of a pixel.
         tracker.moved(at, u);
         tracker.add_clean(u, seen);
-        assert!(tracker.sure_at(u, 3.0));
-        assert!(!tracker.sure_at(u, 0.1));
+        assert!(tracker.sure_at(u, 3.0, DONE_CONFIDENCE));
+        assert!(!tracker.sure_at(u, 0.1, DONE_CONFIDENCE));
     }
 }
