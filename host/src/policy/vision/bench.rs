@@ -10,16 +10,16 @@
 use nalgebra::{Matrix2, Matrix2x6, Matrix6, Vector2, Vector6};
 
 use super::model::{Affine, Vec2};
-use super::tuning::{GATE_CONFIDENCE, PRIOR_GAIN_PX_PER_STEP, PRIOR_OFFSET_PX};
+use super::tuning::{
+    CHI2_MEDIAN, CORE_EXHAUSTIVE, CORE_SHARE, GATE_CONFIDENCE, PRIOR_GAIN_PX_PER_STEP,
+    PRIOR_OFFSET_PX, WIDENING_ROUNDS, WIDENING_SETTLED,
+};
 
 /// The chi-square quantile of two degrees of freedom at probability `p`: that distribution
 /// is exponential with mean 2, so `P(d² <= q) = 1 - exp(-q / 2)`.
 pub fn chi2_quantile(p: f64) -> f64 {
     -2.0 * (1.0 - p).ln()
 }
-
-/// The median of the chi-square distribution of two degrees of freedom (2 ln 2).
-const CHI2_MEDIAN: f64 = 2.0 * std::f64::consts::LN_2;
 
 /// The squared Mahalanobis radius a 2-D error falls within at probability `p`, when its
 /// covariance is known up to a scale estimated from residuals with `freedom` degrees of
@@ -150,14 +150,6 @@ impl Response {
             .is_none_or(|d2| d2 <= chi2_quantile(GATE_CONFIDENCE))
     }
 }
-
-/// The share of the sightings the core of a robust fit is made of: the subset of this size
-/// the model fits best (least trimmed squares), so that a minority of foreign sightings (two
-/// beams seen merged, a cut spot) cannot pull it, probability-free.
-const CORE_SHARE: f64 = 0.6;
-
-/// Subsets for the core are tried exhaustively up to this many sightings, greedily beyond.
-const CORE_EXHAUSTIVE: usize = 12;
 
 /// The model of `points` (command, image) each with an isotropic scatter of `noise` px.
 fn model_of<'a>(points: impl Iterator<Item = &'a (Vec2, Vec2)> + Clone, noise: f64) -> Response {
@@ -293,13 +285,6 @@ pub fn robust_fit(points: &[(Vec2, Vec2)], noise: f64, min_keep: usize) -> Optio
         widening,
     })
 }
-
-/// Rounds of re-estimating the scatter from the sightings kept (each round keeps at least
-/// as many: a few suffice) ...
-const WIDENING_ROUNDS: usize = 4;
-
-/// ... stopped once it grows by less than this factor.
-const WIDENING_SETTLED: f64 = 1.05;
 
 /// How many times the variance `noise`² the sightings `points` scatter by about `model`
 /// fitted to all of them (at least 1): the residual variance over the degrees of freedom the

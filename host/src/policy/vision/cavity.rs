@@ -16,67 +16,20 @@
 
 use optalign_optics::Frame;
 
-use super::model::{SAME_STEP, Sighting, Tracker, Vec2, distance};
+use super::model::{Sighting, Tracker, Vec2, distance};
 use super::see::{Seen, View, alike, motion_in, stationary_pairs};
 use super::sight::{Scales, sight};
-use super::tuning::{CAVITY_TOLERANCE_RADII, DONE_CONFIDENCE};
+use super::tuning::{
+    CAVITY_APART_RADII, CAVITY_CAUTIOUS_SHARE, CAVITY_MATCH_RADII, CAVITY_PROBE_GROWTH,
+    CAVITY_PROBE_RADII, CAVITY_PROBE_SHARES, CAVITY_SEARCH_SHARE, CAVITY_TOLERANCE_RADII,
+    CHECK_CLEARANCE_RADII, CORE_REACH_RADII, DONE_CONFIDENCE, HIDDEN_RADII, MAX_CHECKS,
+    MAX_SIZE_RATIO, MIN_CHANGE_RADIUS_PX, PRIMARY, PRIMARY_CORE_SHARE, RESOLVED_RADII, SAME_STEP,
+    SEARCH_LEVELS, SECONDARY,
+};
 use crate::imaging::{
     Beam, Changes, core_centre, core_radius, nearest, registered_changes_sized, scene_shift,
 };
 use crate::task::{Action, CavityLimits};
-
-/// The secondary is feature 0 of the learned scales, the primary feature 1.
-const SECONDARY: usize = 0;
-const PRIMARY: usize = 1;
-
-/// The first probe moves an axis by this share of its command range.
-const CAUTIOUS_SHARE: f64 = 1.0 / 32.0;
-
-/// While the secondary has not been seen, the search steps by this share of the range.
-const SEARCH_SHARE: f64 = 0.25;
-
-/// After its first rings, the search covers the range on grids this many times finer.
-const SEARCH_LEVELS: usize = 4;
-
-/// Probe lengths stay within these shares of the command range.
-const PROBE_SHARES: Vec2 = [1.0 / 64.0, 1.0 / 3.0];
-
-/// A probe aims to move the secondary this many of its radii.
-const PROBE_RADII: f64 = 4.0;
-
-/// A change whose appearing and vanishing parts are closer than this many radii is a beam
-/// that moved too little to measure: the probe grows by [`PROBE_GROWTH`].
-const RESOLVED_RADII: f64 = 2.0;
-const PROBE_GROWTH: f64 = 3.0;
-
-/// A change whose second-moment radius collapses below this, px, is a speck of a few
-/// pixels (a stray spot's flicker, a hot pixel), never a measurable beam.
-const MIN_CHANGE_RADIUS_PX: f64 = 1.0;
-
-/// A change larger than this many of the secondary's known radii is not the secondary.
-const MAX_SIZE_RATIO: f64 = 1.6;
-
-/// A secondary that moved farther than this many of its radii shows whole in the change.
-const APART_RADII: f64 = 2.0;
-
-/// Within this many primary radii of the target the secondary is (partly) hidden.
-const HIDDEN_RADII: f64 = 1.2;
-
-/// The check point sits this many secondary radii outside the hidden zone.
-const CHECK_CLEARANCE_RADII: f64 = 1.5;
-
-/// The primary's centre is the centroid of its light above this share of its peak, and
-/// its core the light above it ...
-const PRIMARY_CORE_SHARE: f64 = 0.5;
-
-/// ... within this many of its radii.
-const CORE_REACH_RADII: f64 = 2.0;
-
-/// A change farther than this many radii from the prediction is not the secondary.
-const MATCH_RADII: f64 = 3.0;
-
-/// Checks before the agent settles for its best map.
-const MAX_CHECKS: usize = 4;
 
 /// What the last action was for.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -109,7 +62,7 @@ impl CavityAgent {
         let range = limits.ranges.map(|r| [f64::from(r.min), f64::from(r.max)]);
         let spans = range.map(|r| r[1] - r[0]);
         Self {
-            tracker: Tracker::new(spans.map(|s| CAUTIOUS_SHARE * s), range),
+            tracker: Tracker::new(spans.map(|s| CAVITY_CAUTIOUS_SHARE * s), range),
             command: [0.0; 2],
             before: [0.0; 2],
             previous: None,
@@ -215,7 +168,7 @@ impl CavityAgent {
     /// rings assumed shows the secondary only in a patch of commands smaller than their
     /// spacing, anywhere in the range, not only near the start.
     fn search(&self) -> Vec2 {
-        let step = self.spans.map(|s| SEARCH_SHARE * s);
+        let step = self.spans.map(|s| CAVITY_SEARCH_SHARE * s);
         let untried = |u: Vec2, spacing: Vec2| {
             !self
                 .tracker
@@ -313,7 +266,7 @@ impl CavityAgent {
             distance(s.beam.centre, target) > hidden || off - s.change.size() > primary.core
         };
         let expected_near = |centre: Vec2| {
-            expected.is_none_or(|p| distance(centre, p) < MATCH_RADII * radius.max(hidden))
+            expected.is_none_or(|p| distance(centre, p) < CAVITY_MATCH_RADII * radius.max(hidden))
         };
         // The secondary keeps its size and light: a change unlike it (a stray spot's
         // flicker, a speck) is not the secondary.
@@ -333,8 +286,12 @@ impl CavityAgent {
                 <= RESOLVED_RADII * a.beam.size().max(v.beam.size())
         {
             // Moved too little to tell where it went: a longer probe next time.
-            let [lo, hi] = [0, 1].map(|i| PROBE_SHARES[i] * self.spans[0].min(self.spans[1]));
-            let probe = self.tracker.probe.map(|p| (p * PROBE_GROWTH).clamp(lo, hi));
+            let [lo, hi] =
+                [0, 1].map(|i| CAVITY_PROBE_SHARES[i] * self.spans[0].min(self.spans[1]));
+            let probe = self
+                .tracker
+                .probe
+                .map(|p| (p * CAVITY_PROBE_GROWTH).clamp(lo, hi));
             self.tracker.set_probe(probe);
             return false;
         }
@@ -344,7 +301,7 @@ impl CavityAgent {
         // it do not pull its centre, and it shows where the view's detection merged it.
         let apart = matches!((appeared, vanished), (Some(a), Some(v))
             if distance(a.change.centre, v.change.centre)
-                > APART_RADII * a.change.size().max(v.change.size()));
+                > CAVITY_APART_RADII * a.change.size().max(v.change.size()));
         let judge = |seen: &Seen, view: &View| {
             let own = || {
                 if seen.whole {
@@ -424,8 +381,8 @@ impl CavityAgent {
             return;
         }
         let response = distance(vanished, appeared) / step;
-        let [lo, hi] = [0, 1].map(|i| PROBE_SHARES[i] * self.spans[0].min(self.spans[1]));
-        let length = (PROBE_RADII * radius / response.max(1e-9)).clamp(lo, hi);
+        let [lo, hi] = [0, 1].map(|i| CAVITY_PROBE_SHARES[i] * self.spans[0].min(self.spans[1]));
+        let length = (CAVITY_PROBE_RADII * radius / response.max(1e-9)).clamp(lo, hi);
         self.tracker.set_probe([length, length]);
     }
 

@@ -16,16 +16,18 @@
 
 use optalign_optics::Frame;
 
-use super::model::{SAME_STEP, Sighting, Tracker, Vec2, column_norm, distance};
+use super::model::{Sighting, Tracker, Vec2, column_norm, distance};
 use super::see::{Motion, Seen, View, motion, stationary_pairs};
 use super::sight::{Scales, sight, touches};
-use super::tuning::DONE_CONFIDENCE;
+use super::tuning::{
+    BORDER_RADII, CHECK_APART_RADII, DONE_CONFIDENCE, GRID_VIEW_SHARE, IN_VIEW_RADII,
+    MICHELSON_APART_RADII, MICHELSON_CAUTIOUS_SHARE, MICHELSON_MATCH_RADII, MICHELSON_PROBE_GROWTH,
+    MICHELSON_PROBE_RADII, MICHELSON_PROBE_SHARES, MICHELSON_SEARCH_SHARE, MIN_SPREAD_SHARE,
+    PARK_SHARE, PARK_WHEN_SHARE, PROBE_VIEW_SHARE, RELOCATE_SHARE, SAME_STEP, SEARCH_GRID_SHARE,
+    TARGET_TURN, WHOLE_RADII,
+};
 use crate::imaging::Beam;
 use crate::task::{Action, MichelsonLimits};
-
-/// A search grid's points are this share of the image apart in view (a little overlap, so
-/// a beam between points shows at least in part).
-const GRID_VIEW_SHARE: f64 = 0.9;
 
 /// The spacing per command axis of a search grid for a mount of response `gain` (px per
 /// step; rows image x and y) on an image of `size`: a move of one spacing along an axis
@@ -38,71 +40,6 @@ fn search_grid(gain: [[f64; 2]; 2], size: Vec2) -> Vec2 {
             .fold(f64::INFINITY, f64::min)
     })
 }
-
-/// The first probe moves an axis by this share of its command range.
-const CAUTIOUS_SHARE: f64 = 1.0 / 32.0;
-
-/// Probe lengths stay within these shares of the command range.
-const PROBE_SHARES: Vec2 = [1.0 / 64.0, 1.0 / 3.0];
-
-/// While a beam shows only partly or not at all, probes search in steps of this share of
-/// the command range.
-const SEARCH_SHARE: f64 = 1.0 / 6.0;
-
-/// A search with a known response moves the beam by this share of the image's shorter
-/// side per probe length (the grid's points are two probe lengths apart).
-const SEARCH_GRID_SHARE: f64 = 0.5;
-
-/// A probe that did not move the beam visibly is grown by this factor; one that lost it
-/// is shrunk by it.
-const PROBE_GROWTH: f64 = 3.0;
-
-/// A probe aims to move the beam this many beam radii ...
-const PROBE_RADII: f64 = 3.2;
-
-/// ... but at most this share of the image's shorter side.
-const PROBE_VIEW_SHARE: f64 = 0.37;
-
-/// While one mirror is probed, the other's beam (once its map is known) waits this share
-/// of the image width left or right of the centre, on the side away from the probed beam...
-const PARK_SHARE: f64 = 0.35;
-
-/// ... when it is closer to the centre than this share of the width.
-const PARK_WHEN_SHARE: f64 = 0.29;
-
-/// The spread of probe commands a fit needs, as a share of the probe length: fitted spot
-/// centres are good to a pixel, so a short spread still gives a well-conditioned map.
-const MIN_SPREAD_SHARE: f64 = 0.125;
-
-/// Half the separation of the two beams at successive checks, in beam radii.
-const CHECK_APART_RADII: [f64; 3] = [1.8, 2.4, 3.0];
-
-/// A check or a relocation keeps each beam's centre this many radii inside the image, so
-/// that the border cuts neither.
-const WHOLE_RADII: f64 = 1.5;
-
-/// A beam a check did not find goes this many times the other beam's distance from the
-/// centre to the other side of it.
-const RELOCATE_SHARE: f64 = 1.5;
-
-/// A beam found farther than this many radii from a beam's prediction is not that beam.
-const MATCH_RADII: f64 = 1.0;
-
-/// A probe across a known direction keeps the beam's centre this many radii inside the
-/// image, so the beam shows whole.
-const IN_VIEW_RADII: f64 = 1.0;
-
-/// A partial sighting this many radii from a border was cut by it.
-const BORDER_RADII: f64 = 0.6;
-
-/// A probed beam is steered to where it stays this many times the two beams' summed
-/// radii from the other beam: the detector sees two beams closer than about 1.4 summed
-/// radii as one.
-const APART_RADII: f64 = 2.0;
-
-/// Directions tried for a probe's target, in steps of this angle either way from straight
-/// away from the other beam, radians.
-const TARGET_TURN: f64 = std::f64::consts::PI / 6.0;
 
 /// What the last action was for.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -165,7 +102,10 @@ impl MichelsonAgent {
         let spans = [0, 1, 2, 3].map(|a| range(a)[1] - range(a)[0]);
         Self {
             trackers: [0, 2].map(|a| {
-                let probe = [CAUTIOUS_SHARE * spans[a], CAUTIOUS_SHARE * spans[a + 1]];
+                let probe = [
+                    MICHELSON_CAUTIOUS_SHARE * spans[a],
+                    MICHELSON_CAUTIOUS_SHARE * spans[a + 1],
+                ];
                 let mut tracker = Tracker::new(probe, [range(a), range(a + 1)]);
                 tracker.min_spread = MIN_SPREAD_SHARE * probe[0].min(probe[1]);
                 tracker
@@ -379,7 +319,7 @@ impl MichelsonAgent {
             return;
         }
         let span = self.spans[2 * k].min(self.spans[2 * k + 1]);
-        let [lo, hi] = PROBE_SHARES.map(|share| share * span);
+        let [lo, hi] = MICHELSON_PROBE_SHARES.map(|share| share * span);
         let probe = self.trackers[k].probe;
         let scaled = |factor: f64| probe.map(|p| (p * factor).clamp(lo, hi));
         let length = match seen {
@@ -393,12 +333,16 @@ impl MichelsonAgent {
                     let length = (wanted / response).clamp(lo, hi);
                     [length, length]
                 } else {
-                    scaled(PROBE_GROWTH)
+                    scaled(MICHELSON_PROBE_GROWTH)
                 }
             }
             [_, Some(Sighting::Clean(_) | Sighting::Fitted(_))] => probe,
-            [Some(Sighting::Clean(_) | Sighting::Fitted(_)), None] => scaled(1.0 / PROBE_GROWTH),
-            [_, Some(Sighting::Partial(_))] => [SEARCH_SHARE * span; 2].map(|p| p.max(probe[0])),
+            [Some(Sighting::Clean(_) | Sighting::Fitted(_)), None] => {
+                scaled(1.0 / MICHELSON_PROBE_GROWTH)
+            }
+            [_, Some(Sighting::Partial(_))] => {
+                [MICHELSON_SEARCH_SHARE * span; 2].map(|p| p.max(probe[0]))
+            }
             [None, None] if motion.from.is_none() && !self.trackers[k].clean.is_empty() => {
                 if self.trackers[k].model().is_none() && !self.still_in_view(k, after) {
                     // Not yet mapped, and out of view before and after the move: it says
@@ -407,7 +351,7 @@ impl MichelsonAgent {
                     probe
                 } else {
                     // Seen before, no change now: it hardly moved.
-                    scaled(PROBE_GROWTH)
+                    scaled(MICHELSON_PROBE_GROWTH)
                 }
             }
             [None, None] if self.trackers[k].clean.is_empty() => {
@@ -422,7 +366,8 @@ impl MichelsonAgent {
                         self.trackers[k].search_grid = Some(grid);
                         SEARCH_GRID_SHARE * side / column_norm(other.gain).max(1e-9)
                     }
-                    None => (SEARCH_SHARE * span).max(probe[0] * PROBE_GROWTH.sqrt()),
+                    None => (MICHELSON_SEARCH_SHARE * span)
+                        .max(probe[0] * MICHELSON_PROBE_GROWTH.sqrt()),
                 };
                 [search.clamp(lo, hi); 2]
             }
@@ -432,7 +377,7 @@ impl MichelsonAgent {
     }
 
     /// Where probes of mirror `k` steer its beam on an image of `size`: the centre, unless
-    /// what it must not be steered onto ([`Self::obstacle`]) sits within [`APART_RADII`]
+    /// what it must not be steered onto ([`Self::obstacle`]) sits within [`MICHELSON_APART_RADII`]
     /// summed radii of it. Then the point that far from the obstacle, straight away from it
     /// towards where the probed beam was last seen (through the centre when that is on the
     /// obstacle), turned as little as keeps it whole in view. At a small response the
@@ -443,7 +388,7 @@ impl MichelsonAgent {
         let Some((other, from)) = self.obstacle(k, centre) else {
             return centre;
         };
-        let apart = APART_RADII * (self.scales.radius(0) + self.scales.radius(1));
+        let apart = MICHELSON_APART_RADII * (self.scales.radius(0) + self.scales.radius(1));
         if distance(other, centre) >= apart {
             return centre;
         }
@@ -543,7 +488,7 @@ impl MichelsonAgent {
         else {
             return false;
         };
-        let reach = MATCH_RADII * self.scales.radius(k);
+        let reach = MICHELSON_MATCH_RADII * self.scales.radius(k);
         view.beams
             .iter()
             .any(|b| distance(b.centre, last.image) < reach)
@@ -551,7 +496,7 @@ impl MichelsonAgent {
 
     /// How far a probe should move beam `k` on an image of `size`, px.
     fn useful_move(&self, k: usize, size: Vec2) -> f64 {
-        (PROBE_RADII * self.scales.radius(k)).min(PROBE_VIEW_SHARE * size[0].min(size[1]))
+        (MICHELSON_PROBE_RADII * self.scales.radius(k)).min(PROBE_VIEW_SHARE * size[0].min(size[1]))
     }
 
     fn observe_check(&mut self, before: &View, view: &View, predicted: [Vec2; 2]) -> bool {
@@ -620,7 +565,7 @@ impl MichelsonAgent {
             .enumerate()
             .filter(|(i, _)| !skip.get(*i).copied().unwrap_or(false))
             .filter_map(|(_, b)| sight(b, view, &self.scales, k, None).fit_centre())
-            .filter(|c| distance(*c, point) < MATCH_RADII * radius)
+            .filter(|c| distance(*c, point) < MICHELSON_MATCH_RADII * radius)
             .min_by(|a, b| distance(*a, point).total_cmp(&distance(*b, point)))
     }
 
@@ -634,8 +579,8 @@ impl MichelsonAgent {
             return;
         }
         let wanted = self.useful_move(k, size);
-        let [lo, hi] =
-            [0, 1].map(|i| PROBE_SHARES[i] * self.spans[2 * k].min(self.spans[2 * k + 1]));
+        let [lo, hi] = [0, 1]
+            .map(|i| MICHELSON_PROBE_SHARES[i] * self.spans[2 * k].min(self.spans[2 * k + 1]));
         let probe = [0, 1].map(|axis| {
             let response = known.gain[0][axis].hypot(known.gain[1][axis]);
             (wanted / response.max(1e-9)).clamp(lo, hi)
@@ -726,7 +671,7 @@ impl MichelsonAgent {
         self.before = [self.mirror(0), self.mirror(1)];
         let now = self.mirror(k);
         let [low, high] = self.trackers[k].range[0];
-        let step = CAUTIOUS_SHARE * (high - low);
+        let step = MICHELSON_CAUTIOUS_SHARE * (high - low);
         let towards_middle = if now[0] > (low + high) / 2.0 {
             -step
         } else {

@@ -8,6 +8,11 @@ use std::ops::RangeInclusive;
 
 use super::bench;
 use super::play::{self, Play};
+use super::tuning::{
+    LOST_MOTION_DELTA, LOST_MOTION_GAIN, LOST_MOTION_MIN_SIGHTINGS, LOST_MOTION_PER_SIDE,
+    LOST_MOTION_SIGNIFICANCE, LOST_MOTION_TIE_NOISES, LOST_MOTION_WORTH_NOISES, ROBUST_MIN_POINTS,
+    ROUGH_BALANCE, ROUGH_REACH, SAME_COMMAND_SHARE, SAME_STEP, SEARCH_REFINEMENTS, SEARCH_RINGS,
+};
 
 /// A 2-vector (motor steps or pixels).
 pub type Vec2 = [f64; 2];
@@ -114,12 +119,6 @@ pub fn distance(a: Vec2, b: Vec2) -> f64 {
     (a[0] - b[0]).hypot(a[1] - b[1])
 }
 
-/// A search that found nothing on one grid goes on with grids this many times finer...
-const SEARCH_REFINEMENTS: i32 = 4;
-
-/// ... each over this many square rings around the start.
-const SEARCH_RINGS: i32 = 12;
-
 /// The commands of a square grid of `spacing` around `centre`, ring by ring outwards
 /// (ring k: the 8k grid points k steps away along the farther axis).
 pub fn square_rings(centre: Vec2, spacing: Vec2, multiples: RangeInclusive<i32>) -> Vec<Vec2> {
@@ -179,34 +178,6 @@ fn room(from: Vec2, direction: Vec2, view: Vec2) -> f64 {
     exit(1.0).min(exit(-1.0)).max(0.0)
 }
 
-/// Commands closer than this share of the probe length count as the same probe.
-const SAME_COMMAND_SHARE: f64 = 0.04;
-
-/// Commands closer than this are the very same command, steps.
-pub const SAME_STEP: f64 = 1.0;
-
-/// Lost motion is estimated once this many clean sightings were made ...
-const LOST_MOTION_MIN_SIGHTINGS: usize = 8;
-
-/// A first dead band is taken only when it explains more than this many position noises of
-/// each sighting's miss (root mean square).
-const LOST_MOTION_WORTH_NOISES: f64 = 6.0;
-
-/// Plays whose misfits (sums of squared misses, px²) differ by less than this many
-/// squared position noises explain the sightings alike: the simpler one is kept.
-const LOST_MOTION_TIE_NOISES: f64 = 4.0;
-
-/// The change of a dead band its uncertainty is measured over, steps.
-const LOST_MOTION_DELTA: f64 = 1.0;
-
-/// ... with at least this many after moves either way on the axis ...
-const LOST_MOTION_PER_SIDE: usize = 2;
-
-/// ... and kept only when it explains this share of the fit's residual, and exceeds its own
-/// standard error this many times.
-const LOST_MOTION_GAIN: f64 = 0.3;
-const LOST_MOTION_SIGNIFICANCE: f64 = 3.0;
-
 /// How a detected beam serves the model.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Sighting {
@@ -228,18 +199,6 @@ impl Sighting {
         }
     }
 }
-
-/// A probe aimed by the rough map of every sighting goes at most this many probe lengths
-/// per axis ...
-const ROUGH_REACH: f64 = 3.0;
-
-/// ... and only when the map moves the beam along its weaker direction at least this share
-/// as far as along its stronger (a mount's axes respond alike; a map that says one hardly
-/// moves the beam was fitted to centroids the border pinned).
-const ROUGH_BALANCE: f64 = 0.2;
-
-/// A fit keeps at least this many sightings when it sets aside ones the others contradict.
-const ROBUST_MIN_POINTS: usize = 4;
 
 /// One sighting of a feature: the command, where it showed, the direction each axis had
 /// last moved in (+1, -1; 0 before its first move) and where in the tracker's command path

@@ -222,3 +222,200 @@ pub const SLIVER_EDGE: f64 = 0.5;
 /// A beam whose centre lies this many of its major radii from every border shows with
 /// dark all round it.
 pub const CLEAR_OF_BORDER_RADII: f64 = 2.0;
+
+// The Michelson agent (`michelson`)
+
+/// A search grid's points are this share of the image apart in view (a little overlap, so
+/// a beam between points shows at least in part).
+pub const GRID_VIEW_SHARE: f64 = 0.9;
+
+/// The first probe moves an axis by this share of its command range.
+pub const MICHELSON_CAUTIOUS_SHARE: f64 = 1.0 / 32.0;
+
+/// Probe lengths stay within these shares of the command range.
+pub const MICHELSON_PROBE_SHARES: [f64; 2] = [1.0 / 64.0, 1.0 / 3.0];
+
+/// While a beam shows only partly or not at all, probes search in steps of this share of
+/// the command range.
+pub const MICHELSON_SEARCH_SHARE: f64 = 1.0 / 6.0;
+
+/// A search with a known response moves the beam by this share of the image's shorter
+/// side per probe length (the grid's points are two probe lengths apart).
+pub const SEARCH_GRID_SHARE: f64 = 0.5;
+
+/// A probe that did not move the beam visibly is grown by this factor; one that lost it
+/// is shrunk by it.
+pub const MICHELSON_PROBE_GROWTH: f64 = 3.0;
+
+/// A probe aims to move the beam this many beam radii ...
+pub const MICHELSON_PROBE_RADII: f64 = 3.2;
+
+/// ... but at most this share of the image's shorter side.
+pub const PROBE_VIEW_SHARE: f64 = 0.37;
+
+/// While one mirror is probed, the other's beam (once its map is known) waits this share
+/// of the image width left or right of the centre, on the side away from the probed beam...
+pub const PARK_SHARE: f64 = 0.35;
+
+/// ... when it is closer to the centre than this share of the width.
+pub const PARK_WHEN_SHARE: f64 = 0.29;
+
+/// The spread of probe commands a fit needs, as a share of the probe length: fitted spot
+/// centres are good to a pixel, so a short spread still gives a well-conditioned map.
+pub const MIN_SPREAD_SHARE: f64 = 0.125;
+
+/// Half the separation of the two beams at successive checks, in beam radii.
+pub const CHECK_APART_RADII: [f64; 3] = [1.8, 2.4, 3.0];
+
+/// A check or a relocation keeps each beam's centre this many radii inside the image, so
+/// that the border cuts neither.
+pub const WHOLE_RADII: f64 = 1.5;
+
+/// A beam a check did not find goes this many times the other beam's distance from the
+/// centre to the other side of it.
+pub const RELOCATE_SHARE: f64 = 1.5;
+
+/// A beam found farther than this many radii from a beam's prediction is not that beam.
+pub const MICHELSON_MATCH_RADII: f64 = 1.0;
+
+/// A probe across a known direction keeps the beam's centre this many radii inside the
+/// image, so the beam shows whole.
+pub const IN_VIEW_RADII: f64 = 1.0;
+
+/// A partial sighting this many radii from a border was cut by it.
+pub const BORDER_RADII: f64 = 0.6;
+
+/// A probed beam is steered to where it stays this many times the two beams' summed
+/// radii from the other beam: the detector sees two beams closer than about 1.4 summed
+/// radii as one.
+pub const MICHELSON_APART_RADII: f64 = 2.0;
+
+/// Directions tried for a probe's target, in steps of this angle either way from straight
+/// away from the other beam, radians.
+pub const TARGET_TURN: f64 = std::f64::consts::PI / 6.0;
+
+// The cavity agent (`cavity`)
+
+/// The secondary is feature 0 of the learned scales, the primary feature 1.
+pub const SECONDARY: usize = 0;
+
+pub const PRIMARY: usize = 1;
+
+/// The first probe moves an axis by this share of its command range.
+pub const CAVITY_CAUTIOUS_SHARE: f64 = 1.0 / 32.0;
+
+/// While the secondary has not been seen, the search steps by this share of the range.
+pub const CAVITY_SEARCH_SHARE: f64 = 0.25;
+
+/// After its first rings, the search covers the range on grids this many times finer.
+pub const SEARCH_LEVELS: usize = 4;
+
+/// Probe lengths stay within these shares of the command range.
+pub const CAVITY_PROBE_SHARES: [f64; 2] = [1.0 / 64.0, 1.0 / 3.0];
+
+/// A probe aims to move the secondary this many of its radii.
+pub const CAVITY_PROBE_RADII: f64 = 4.0;
+
+/// A change whose appearing and vanishing parts are closer than this many radii is a beam
+/// that moved too little to measure: the probe grows by [`PROBE_GROWTH`].
+pub const RESOLVED_RADII: f64 = 2.0;
+
+pub const CAVITY_PROBE_GROWTH: f64 = 3.0;
+
+/// A change whose second-moment radius collapses below this, px, is a speck of a few
+/// pixels (a stray spot's flicker, a hot pixel), never a measurable beam.
+pub const MIN_CHANGE_RADIUS_PX: f64 = 1.0;
+
+/// A change larger than this many of the secondary's known radii is not the secondary.
+pub const MAX_SIZE_RATIO: f64 = 1.6;
+
+/// A secondary that moved farther than this many of its radii shows whole in the change.
+pub const CAVITY_APART_RADII: f64 = 2.0;
+
+/// Within this many primary radii of the target the secondary is (partly) hidden.
+pub const HIDDEN_RADII: f64 = 1.2;
+
+/// The check point sits this many secondary radii outside the hidden zone.
+pub const CHECK_CLEARANCE_RADII: f64 = 1.5;
+
+/// The primary's centre is the centroid of its light above this share of its peak, and
+/// its core the light above it ...
+pub const PRIMARY_CORE_SHARE: f64 = 0.5;
+
+/// ... within this many of its radii.
+pub const CORE_REACH_RADII: f64 = 2.0;
+
+/// A change farther than this many radii from the prediction is not the secondary.
+pub const CAVITY_MATCH_RADII: f64 = 3.0;
+
+/// Checks before the agent settles for its best map.
+pub const MAX_CHECKS: usize = 4;
+
+// A mount's map, its lost motion and the search for its feature (`model`)
+
+/// A search that found nothing on one grid goes on with grids this many times finer...
+pub const SEARCH_REFINEMENTS: i32 = 4;
+
+/// ... each over this many square rings around the start.
+pub const SEARCH_RINGS: i32 = 12;
+
+/// Commands closer than this share of the probe length count as the same probe.
+pub const SAME_COMMAND_SHARE: f64 = 0.04;
+
+/// Commands closer than this are the very same command, steps.
+pub const SAME_STEP: f64 = 1.0;
+
+/// Lost motion is estimated once this many clean sightings were made ...
+pub const LOST_MOTION_MIN_SIGHTINGS: usize = 8;
+
+/// A first dead band is taken only when it explains more than this many position noises of
+/// each sighting's miss (root mean square).
+pub const LOST_MOTION_WORTH_NOISES: f64 = 6.0;
+
+/// Plays whose misfits (sums of squared misses, px²) differ by less than this many
+/// squared position noises explain the sightings alike: the simpler one is kept.
+pub const LOST_MOTION_TIE_NOISES: f64 = 4.0;
+
+/// The change of a dead band its uncertainty is measured over, steps.
+pub const LOST_MOTION_DELTA: f64 = 1.0;
+
+/// ... with at least this many after moves either way on the axis ...
+pub const LOST_MOTION_PER_SIDE: usize = 2;
+
+/// ... and kept only when it explains this share of the fit's residual, and exceeds its own
+/// standard error this many times.
+pub const LOST_MOTION_GAIN: f64 = 0.3;
+
+pub const LOST_MOTION_SIGNIFICANCE: f64 = 3.0;
+
+/// A probe aimed by the rough map of every sighting goes at most this many probe lengths
+/// per axis ...
+pub const ROUGH_REACH: f64 = 3.0;
+
+/// ... and only when the map moves the beam along its weaker direction at least this share
+/// as far as along its stronger (a mount's axes respond alike; a map that says one hardly
+/// moves the beam was fitted to centroids the border pinned).
+pub const ROUGH_BALANCE: f64 = 0.2;
+
+/// A fit keeps at least this many sightings when it sets aside ones the others contradict.
+pub const ROBUST_MIN_POINTS: usize = 4;
+
+// The bench model's robust fit (`bench`)
+
+/// The median of the chi-square distribution of two degrees of freedom (2 ln 2).
+pub const CHI2_MEDIAN: f64 = 2.0 * std::f64::consts::LN_2;
+
+/// The share of the sightings the core of a robust fit is made of: the subset of this size
+/// the model fits best (least trimmed squares), so that a minority of foreign sightings (two
+/// beams seen merged, a cut spot) cannot pull it, probability-free.
+pub const CORE_SHARE: f64 = 0.6;
+
+/// Subsets for the core are tried exhaustively up to this many sightings, greedily beyond.
+pub const CORE_EXHAUSTIVE: usize = 12;
+
+/// Rounds of re-estimating the scatter from the sightings kept (each round keeps at least
+/// as many: a few suffice) ...
+pub const WIDENING_ROUNDS: usize = 4;
+
+/// ... stopped once it grows by less than this factor.
+pub const WIDENING_SETTLED: f64 = 1.05;
