@@ -673,17 +673,28 @@ struct Moments {
     gxy: f64,
 }
 
-/// The pixels beam `id` owns in the window `centre ± half` (above the moment floor), as
-/// runs along rows: `visit(y, x_from, x_to)` for each.
-fn owned_runs(
-    picture: &Picture,
-    grid: &Grid,
-    owner: &[u32],
+/// Where one beam is measured: the pixels beam `id` owns (by `owner`, on `grid`'s blocks)
+/// in the window `centre ± half`.
+struct Window<'a> {
+    picture: &'a Picture,
+    grid: &'a Grid,
+    owner: &'a [u32],
     id: u32,
     centre: [f64; 2],
     half: [f64; 2],
-    mut visit: impl FnMut(usize, usize, usize),
-) {
+}
+
+/// The pixels of `window` (above the moment floor), as runs along rows:
+/// `visit(y, x_from, x_to)` for each.
+fn owned_runs(window: &Window, mut visit: impl FnMut(usize, usize, usize)) {
+    let Window {
+        picture,
+        grid,
+        owner,
+        id,
+        centre,
+        half,
+    } = *window;
     let (w, h) = (picture.width(), picture.height());
     let x0 = (centre[0] - half[0]).floor().max(0.0) as usize;
     let x1 = ((centre[0] + half[0]).ceil().max(0.0) as usize).min(w);
@@ -708,14 +719,8 @@ fn owned_runs(
 
 /// The first and second moments of beam `id` over the pixels it owns in the window
 /// `centre ± half`.
-fn window_moments(
-    picture: &Picture,
-    grid: &Grid,
-    owner: &[u32],
-    id: u32,
-    centre: [f64; 2],
-    half: [f64; 2],
-) -> Moments {
+fn window_moments(window: &Window) -> Moments {
+    let (picture, centre) = (window.picture, window.centre);
     let w = picture.width();
     let light = picture.light();
     let mut m = Moments::default();
@@ -735,7 +740,7 @@ fn window_moments(
         m.gxy += gx * py;
     };
     let mut current: Option<(usize, [f32; 6])> = None;
-    owned_runs(picture, grid, owner, id, centre, half, |y, from, to| {
+    owned_runs(window, |y, from, to| {
         if let Some((row, sums)) = current
             && row != y
         {
@@ -766,15 +771,8 @@ fn window_moments(
 /// centroids differ only by what is random at scales finer than a cell: read noise, and
 /// the texture, fringes or speckle the beam carries. The covariance of their mean, px²;
 /// `None` when a class holds no light.
-fn split_covariance(
-    picture: &Picture,
-    grid: &Grid,
-    owner: &[u32],
-    id: u32,
-    centre: [f64; 2],
-    half: [f64; 2],
-    cell: usize,
-) -> Option<[[f64; 2]; 2]> {
+fn split_covariance(window: &Window, cell: usize) -> Option<[[f64; 2]; 2]> {
+    let (picture, centre) = (window.picture, window.centre);
     let w = picture.width();
     let light = picture.light();
     // Cells on the pixel grid, whole pixels wide: every class holds the same share of
@@ -782,7 +780,7 @@ fn split_covariance(
     // class a pixel more here and there, which on a beam's steep flanks is shape).
     let class_of = |pixel: usize| (pixel / cell) % 3;
     let mut sums = [[0f64; 3]; SPLIT_CLASSES];
-    owned_runs(picture, grid, owner, id, centre, half, |y, from, to| {
+    owned_runs(window, |y, from, to| {
         let dy = y as f64 + 0.5 - centre[1];
         let row = 3 * class_of(y);
         for (x, &v) in (from..to).zip(&light[y * w + from..y * w + to]) {
@@ -981,7 +979,14 @@ fn window_footprint(
         MOMENT_WINDOW_RADII * (2.0 * (vyy / s).sqrt()).max(floor),
     ];
     for _ in 0..20 {
-        let moments = window_moments(picture, grid, owner, id_u32, centre, half);
+        let moments = window_moments(&Window {
+            picture,
+            grid,
+            owner,
+            id: id_u32,
+            centre,
+            half,
+        });
         if moments.s <= 0.0 {
             return None;
         }
@@ -997,7 +1002,14 @@ fn window_footprint(
         }
     }
     // Moments about the final centre.
-    let m = window_moments(picture, grid, owner, id_u32, centre, half);
+    let m = window_moments(&Window {
+        picture,
+        grid,
+        owner,
+        id: id_u32,
+        centre,
+        half,
+    });
     if m.s <= 0.0 {
         return None;
     }
@@ -1021,7 +1033,17 @@ fn window_footprint(
         radii: [2.0 * major.sqrt(), 2.0 * minor.sqrt()],
         angle,
         signal: m.s,
-        split: split_covariance(picture, grid, owner, id_u32, centre, half, cell),
+        split: split_covariance(
+            &Window {
+                picture,
+                grid,
+                owner,
+                id: id_u32,
+                centre,
+                half,
+            },
+            cell,
+        ),
         // About the centroid rather than the window's centre.
         spread: [
             [
