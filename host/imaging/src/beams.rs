@@ -522,6 +522,10 @@ fn join_regions(
     regions: &[Region],
     joining: Joining,
 ) -> Vec<Vec<usize>> {
+    let tails: Vec<Option<Tail>> = match joining {
+        Joining::AcrossDarkValley => regions.iter().map(|r| Tail::of(picture, grid, r)).collect(),
+        Joining::Near => Vec::new(),
+    };
     let mut parent: Vec<usize> = (0..regions.len()).collect();
     fn root(parent: &mut [usize], mut i: usize) -> usize {
         while parent[i] != i {
@@ -538,7 +542,8 @@ fn join_regions(
             }
             let distance = (ra.centre[0] - rb.centre[0]).hypot(ra.centre[1] - rb.centre[1]);
             if core_gap(grid, ra, rb, JOIN_GAP_SHARE * distance)
-                && (joining == Joining::Near || dark_between(picture, grid, ra, rb))
+                && (joining == Joining::Near
+                    || dark_between(grid, (ra, &tails[a]), (rb, &tails[b])))
             {
                 let (x, y) = (root(&mut parent, a), root(&mut parent, b));
                 parent[x] = y;
@@ -565,9 +570,12 @@ fn join_regions(
 /// by dark fringes, cancel there. Joined when some point of the line is below
 /// [`JOIN_NODE_SHARE`] of that sum, beyond the noise. A saturated region's true peak is
 /// unknown (its tail cannot be predicted): its valley is not judged.
-fn dark_between(picture: &Picture, grid: &Grid, a: &Region, b: &Region) -> bool {
-    let (Some(tail_a), Some(tail_b)) = (Tail::of(picture, grid, a), Tail::of(picture, grid, b))
-    else {
+fn dark_between(
+    grid: &Grid,
+    (a, tail_a): (&Region, &Option<Tail>),
+    (b, tail_b): (&Region, &Option<Tail>),
+) -> bool {
+    let (Some(tail_a), Some(tail_b)) = (tail_a, tail_b) else {
         return true;
     };
     let length = (b.centre[0] - a.centre[0]).hypot(b.centre[1] - a.centre[1]);
@@ -585,6 +593,32 @@ fn dark_between(picture: &Picture, grid: &Grid, a: &Region, b: &Region) -> bool 
         let apart = tail_a.at([x, y]) + tail_b.at([x, y]);
         f64::from(grid.means[i]) <= JOIN_NODE_SHARE * apart + JOIN_VALLEY_NOISES * block_noise
     })
+}
+
+/// The centroid of blocks' light (their means, negative ones as none) and its second
+/// moments about it (xx, yy, xy), px²; `None` when they hold no light.
+fn block_moments(grid: &Grid, blocks: &[usize]) -> Option<([f64; 2], [f64; 3])> {
+    let light = |b: usize| f64::from(grid.means[b].max(0.0));
+    let (mut s, mut sx, mut sy) = (0.0, 0.0, 0.0);
+    for &b in blocks {
+        let (v, c) = (light(b), grid.centre_of(b));
+        s += v;
+        sx += v * c[0];
+        sy += v * c[1];
+    }
+    if s <= 0.0 {
+        return None;
+    }
+    let centre = [sx / s, sy / s];
+    let mut moments = [0.0; 3];
+    for &b in blocks {
+        let (v, c) = (light(b), grid.centre_of(b));
+        let d = [c[0] - centre[0], c[1] - centre[1]];
+        moments[0] += v * d[0] * d[0];
+        moments[1] += v * d[1] * d[1];
+        moments[2] += v * d[0] * d[1];
+    }
+    Some((centre, moments.map(|m| m / s)))
 }
 
 /// A region's light taken for a Gaussian spot: its brightest block's level and the
@@ -608,30 +642,12 @@ impl Tail {
         if block_pixels(brightest, grid, w, h).any(|p| picture.is_saturated(p)) {
             return None;
         }
-        let (mut s, mut sx, mut sy) = (0.0, 0.0, 0.0);
-        for &b in &region.blocks {
-            let (v, c) = (f64::from(grid.means[b].max(0.0)), grid.centre_of(b));
-            s += v;
-            sx += v * c[0];
-            sy += v * c[1];
-        }
-        let centre = [sx / s, sy / s];
-        let (mut cxx, mut cyy, mut cxy) = (0.0, 0.0, 0.0);
-        for &b in &region.blocks {
-            let (v, c) = (f64::from(grid.means[b].max(0.0)), grid.centre_of(b));
-            let d = [c[0] - centre[0], c[1] - centre[1]];
-            cxx += v * d[0] * d[0];
-            cyy += v * d[1] * d[1];
-            cxy += v * d[0] * d[1];
-        }
-        let det = (cxx * cyy - cxy * cxy) / (s * s);
-        (s > 0.0 && det > 0.0).then(|| Self {
+        let (centre, [cxx, cyy, cxy]) = block_moments(grid, &region.blocks)?;
+        let det = cxx * cyy - cxy * cxy;
+        (det > 0.0).then(|| Self {
             peak: f64::from(grid.means[brightest]),
             centre,
-            inverse: [
-                [cyy / s / det, -cxy / s / det],
-                [-cxy / s / det, cxx / s / det],
-            ],
+            inverse: [[cyy / det, -cxy / det], [-cxy / det, cxx / det]],
         })
     }
 
@@ -954,39 +970,22 @@ fn window_footprint(
     blocks: &[usize],
 ) -> Option<Footprint> {
     // Start from the blocks' own moments.
-    let (mut s, mut sx, mut sy) = (0.0, 0.0, 0.0);
-    for &b in blocks {
-        let v = f64::from(grid.means[b].max(0.0));
-        let c = grid.centre_of(b);
-        s += v;
-        sx += v * c[0];
-        sy += v * c[1];
-    }
-    if s <= 0.0 {
-        return None;
-    }
-    let mut centre = [sx / s, sy / s];
-    let (mut vxx, mut vyy) = (0.0, 0.0);
-    for &b in blocks {
-        let v = f64::from(grid.means[b].max(0.0));
-        let c = grid.centre_of(b);
-        vxx += v * (c[0] - centre[0]).powi(2);
-        vyy += v * (c[1] - centre[1]).powi(2);
-    }
+    let (mut centre, [vxx, vyy, _]) = block_moments(grid, blocks)?;
     let floor = BLOCK as f64;
     let mut half = [
-        MOMENT_WINDOW_RADII * (2.0 * (vxx / s).sqrt()).max(floor),
-        MOMENT_WINDOW_RADII * (2.0 * (vyy / s).sqrt()).max(floor),
+        MOMENT_WINDOW_RADII * (2.0 * vxx.sqrt()).max(floor),
+        MOMENT_WINDOW_RADII * (2.0 * vyy.sqrt()).max(floor),
     ];
+    let window = |centre, half| Window {
+        picture,
+        grid,
+        owner,
+        id: id_u32,
+        centre,
+        half,
+    };
     for _ in 0..20 {
-        let moments = window_moments(&Window {
-            picture,
-            grid,
-            owner,
-            id: id_u32,
-            centre,
-            half,
-        });
+        let moments = window_moments(&window(centre, half));
         if moments.s <= 0.0 {
             return None;
         }
@@ -1002,14 +1001,7 @@ fn window_footprint(
         }
     }
     // Moments about the final centre.
-    let m = window_moments(&Window {
-        picture,
-        grid,
-        owner,
-        id: id_u32,
-        centre,
-        half,
-    });
+    let m = window_moments(&window(centre, half));
     if m.s <= 0.0 {
         return None;
     }
@@ -1033,17 +1025,7 @@ fn window_footprint(
         radii: [2.0 * major.sqrt(), 2.0 * minor.sqrt()],
         angle,
         signal: m.s,
-        split: split_covariance(
-            &Window {
-                picture,
-                grid,
-                owner,
-                id: id_u32,
-                centre,
-                half,
-            },
-            cell,
-        ),
+        split: split_covariance(&window(centre, half), cell),
         // About the centroid rather than the window's centre.
         spread: [
             [

@@ -262,11 +262,13 @@ impl Standardised {
     }
 }
 
-/// K + noise I, row-major.
+/// K + noise I, its lower triangle (all the Cholesky factor reads; each pair's kernel once).
 fn covariance(inputs: &[Vec<f64>], kernel: &Matern52, noise_variance: f64) -> DMatrix<f64> {
     let n = inputs.len();
-    DMatrix::from_fn(n, n, |a, b| {
-        kernel.value(&inputs[a], &inputs[b]) + if a == b { noise_variance } else { 0.0 }
+    DMatrix::from_fn(n, n, |a, b| match a.cmp(&b) {
+        std::cmp::Ordering::Less => 0.0,
+        std::cmp::Ordering::Equal => kernel.signal_variance + noise_variance,
+        std::cmp::Ordering::Greater => kernel.value(&inputs[a], &inputs[b]),
     })
 }
 
