@@ -29,7 +29,6 @@
 //! authentication backoff may hold): on a network link it goes out on a keyless
 //! connection of its own, retried until the deadline ([`emergency_stop`]).
 
-use std::collections::HashMap;
 use std::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
@@ -49,6 +48,7 @@ use super::endpoint::Endpoint;
 use super::framed::{FrameReader, write_frame_sealed};
 use super::key::AccessKey;
 use super::transport::Transport;
+use super::waiters::Waiters;
 
 /// How often authentication is tried while the controller backs off.
 const AUTH_TRIES: u32 = 4;
@@ -204,8 +204,6 @@ pub struct MoveReport {
     pub duration_ms: u32,
 }
 
-type Pending = Arc<Mutex<HashMap<u32, oneshot::Sender<Reply>>>>;
-
 struct Connection {
     writer: WriteHalf<Transport>,
     reader: JoinHandle<()>,
@@ -213,11 +211,14 @@ struct Connection {
     inbound: Arc<Mutex<Inbound>>,
     /// Seals every frame sent once authenticated.
     sealer: Option<Sealer>,
+    /// The requests waiting for their replies on this connection.
+    waiters: Arc<Waiters>,
 }
 
 impl Drop for Connection {
     fn drop(&mut self) {
         self.reader.abort();
+        self.waiters.close();
     }
 }
 
@@ -226,7 +227,6 @@ pub struct Client {
     endpoint: Endpoint,
     options: ClientOptions,
     connection: tokio::sync::Mutex<Option<Connection>>,
-    pending: Pending,
     events: broadcast::Sender<Event>,
     next_id: AtomicU32,
     identity: Mutex<Option<Identity>>,
@@ -247,7 +247,6 @@ impl Client {
             endpoint,
             options,
             connection: tokio::sync::Mutex::new(None),
-            pending: Arc::default(),
             events,
             next_id: AtomicU32::new(rand::random()),
             identity: Mutex::new(None),
@@ -452,39 +451,67 @@ impl Client {
         request: &Request,
         sent_to: &mut Option<u64>,
     ) -> Result<Reply, ClientError> {
-        let (sender, receiver) = oneshot::channel();
-        self.pending
-            .lock()
-            .unwrap_or_else(|e| e.into_inner())
-            .insert(request.id.0, sender);
-        let sent = self.send(request, sent_to).await;
-        let outcome = match sent {
-            Ok(()) => match tokio::time::timeout(self.options.request_timeout, receiver).await {
-                Ok(Ok(reply)) => Ok(reply),
-                Ok(Err(_)) => Err(ClientError::Io {
-                    endpoint: self.endpoint.clone(),
-                    source: std::io::ErrorKind::ConnectionReset.into(),
-                }),
-                Err(_) => Err(ClientError::Timeout {
-                    endpoint: self.endpoint.clone(),
-                    attempts: 1,
-                }),
-            },
-            Err(error) => Err(error),
-        };
-        self.pending
-            .lock()
-            .unwrap_or_else(|e| e.into_inner())
-            .remove(&request.id.0);
-        outcome
+        let (waiters, receiver) = self.send(request, sent_to).await?;
+        self.reply(request, &waiters, receiver).await
+    }
+
+    /// Waits for the reply to `request` within the request timeout.
+    async fn reply(
+        &self,
+        request: &Request,
+        waiters: &Waiters,
+        receiver: oneshot::Receiver<Reply>,
+    ) -> Result<Reply, ClientError> {
+        let reply = tokio::time::timeout(self.options.request_timeout, receiver).await;
+        waiters.forget(request.id.0);
+        match reply {
+            Ok(Ok(reply)) => Ok(reply),
+            Ok(Err(_)) => Err(self.link_ended()),
+            Err(_) => Err(ClientError::Timeout {
+                endpoint: self.endpoint.clone(),
+                attempts: 1,
+            }),
+        }
+    }
+
+    /// The error of a request whose link ended before its reply came.
+    fn link_ended(&self) -> ClientError {
+        ClientError::Io {
+            endpoint: self.endpoint.clone(),
+            source: std::io::ErrorKind::ConnectionReset.into(),
+        }
+    }
+
+    /// Registers the wait for `request`'s reply on `connection`, then writes it; the
+    /// connection's waiters and the reply's receiver.
+    async fn write_request(
+        &self,
+        connection: &mut Connection,
+        request: &Request,
+    ) -> Result<(Arc<Waiters>, oneshot::Receiver<Reply>), ClientError> {
+        let waiters = connection.waiters.clone();
+        let receiver = waiters
+            .wait_for(request.id.0)
+            .ok_or_else(|| self.link_ended())?;
+        // Marked until the frame is out: a deadline cutting the write short leaves it set.
+        self.interrupted.store(true, Ordering::Release);
+        let written =
+            write_frame_sealed(&mut connection.writer, request, connection.sealer.as_mut());
+        let written = self.bounded(written).await;
+        self.interrupted.store(false, Ordering::Release);
+        written.map(|()| (waiters, receiver))
     }
 
     /// Writes `request`, reconnecting first when the link is down. A command with an
     /// effect goes only to the start-up it was first sent to: `sent_to` records that
     /// start-up's boot nonce, and another one answering now gives `OutcomeUnknown`. Stops
     /// are exempt: one run twice is the same as once, and a restarted controller should
-    /// stop too.
-    async fn send(&self, request: &Request, sent_to: &mut Option<u64>) -> Result<(), ClientError> {
+    /// stop too. Gives the connection's waiters and the receiver of the reply.
+    async fn send(
+        &self,
+        request: &Request,
+        sent_to: &mut Option<u64>,
+    ) -> Result<(Arc<Waiters>, oneshot::Receiver<Reply>), ClientError> {
         let mut connection = self.connection.lock().await;
         if self.interrupted.swap(false, Ordering::AcqRel) {
             *connection = None;
@@ -512,17 +539,13 @@ impl Client {
         let Some(open) = connection.as_mut() else {
             unreachable!("open() either connects or returns an error")
         };
-        // Marked until the frame is out: a deadline cutting the write short leaves it set.
-        self.interrupted.store(true, Ordering::Release);
-        let written = write_frame_sealed(&mut open.writer, request, open.sealer.as_mut());
-        let written = self.bounded(written).await;
-        self.interrupted.store(false, Ordering::Release);
-        if let Err(error) = written {
-            // A frame cut short would garble the next one: start over on a new link.
+        let written = self.write_request(open, request).await;
+        if written.is_err() {
+            // A frame cut short would garble the next one, and a link that ended answers
+            // nothing: start over on a new link.
             *connection = None;
-            return Err(error);
         }
-        Ok(())
+        written
     }
 
     /// Runs one write within the send timeout.
@@ -555,10 +578,11 @@ impl Client {
         // A lone delimiter flushes any half frame a previous client left at the peer.
         self.bounded(writer.write_all(&[0])).await?;
         let inbound = Arc::new(Mutex::new(Inbound::plain()));
+        let waiters = Arc::new(Waiters::new());
         let reader = tokio::spawn(read_loop(
             FrameReader::new(read),
             inbound.clone(),
-            self.pending.clone(),
+            waiters.clone(),
             self.events.clone(),
         ));
         *slot = Some(Connection {
@@ -566,6 +590,7 @@ impl Client {
             reader,
             inbound,
             sealer: None,
+            waiters,
         });
         let established = self.establish(slot).await;
         if established.is_ok() {
@@ -620,35 +645,9 @@ impl Client {
             id: self.next_request_id(),
             command,
         };
-        let (sender, receiver) = oneshot::channel();
-        self.pending
-            .lock()
-            .unwrap_or_else(|e| e.into_inner())
-            .insert(request.id.0, sender);
         let connection = slot.as_mut().expect("setup runs on an open connection");
-        let io_error = |source| ClientError::Io {
-            endpoint: self.endpoint.clone(),
-            source,
-        };
-        self.bounded(write_frame_sealed(
-            &mut connection.writer,
-            &request,
-            connection.sealer.as_mut(),
-        ))
-        .await?;
-        let reply = tokio::time::timeout(self.options.request_timeout, receiver).await;
-        self.pending
-            .lock()
-            .unwrap_or_else(|e| e.into_inner())
-            .remove(&request.id.0);
-        match reply {
-            Ok(Ok(reply)) => Ok(reply),
-            Ok(Err(_)) => Err(io_error(std::io::ErrorKind::ConnectionReset.into())),
-            Err(_) => Err(ClientError::Timeout {
-                endpoint: self.endpoint.clone(),
-                attempts: 1,
-            }),
-        }
+        let (waiters, receiver) = self.write_request(connection, &request).await?;
+        self.reply(&request, &waiters, receiver).await
     }
 
     async fn handshake(&self, slot: &mut Option<Connection>) -> Result<Identity, ClientError> {
@@ -1045,21 +1044,14 @@ fn version_name(version: Option<u16>) -> String {
 async fn read_loop(
     mut reader: FrameReader<tokio::io::ReadHalf<Transport>, PeerMessage>,
     inbound: Arc<Mutex<Inbound>>,
-    pending: Pending,
+    waiters: Arc<Waiters>,
     events: broadcast::Sender<Event>,
 ) {
     loop {
         match reader.next_shared(&inbound).await {
             Ok(Some(Ok(PeerMessage::Reply { id, reply }))) => {
-                let waiter = pending
-                    .lock()
-                    .unwrap_or_else(|e| e.into_inner())
-                    .remove(&id.0);
-                match waiter {
-                    Some(waiter) => {
-                        let _ = waiter.send(reply);
-                    }
-                    None => tracing::debug!(?id, "reply to a request nobody waits for"),
+                if !waiters.answer(id.0, reply) {
+                    tracing::debug!(?id, "reply to a request nobody waits for");
                 }
             }
             Ok(Some(Ok(PeerMessage::Notify(notification)))) => {
@@ -1074,7 +1066,7 @@ async fn read_loop(
                 let _ = events.send(Event::Garbage(error));
             }
             Ok(None) | Err(_) => {
-                pending.lock().unwrap_or_else(|e| e.into_inner()).clear();
+                waiters.close();
                 let _ = events.send(Event::Disconnected);
                 return;
             }

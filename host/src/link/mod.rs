@@ -7,6 +7,7 @@ pub mod framed;
 pub mod key;
 pub mod report;
 pub mod transport;
+mod waiters;
 
 pub use client::{Client, ClientError, ClientOptions, Event, MoveReport, Unknown};
 pub use endpoint::{Endpoint, EndpointError};
