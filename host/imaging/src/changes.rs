@@ -1,20 +1,21 @@
-//! What changed between two pictures of the same camera: the signed difference, with the
-//! laser's power drift between the frames taken out first (the gain that best maps the
-//! earlier picture's steady light onto the later one), saturated pixels ignored (they show
-//! nothing), then searched for beams both ways. Everything that did not move cancels; a
+//! What changed between two pictures of the same camera: the signed difference, compared
+//! on one background, with the room's light that rose or fell (a plane) and the laser's
+//! power drift (the gain that best maps the earlier picture's steady light onto the later
+//! one) taken out first, saturated pixels ignored (they show nothing), then searched for
+//! beams both ways. Everything that did not move cancels; a
 //! moved beam shows where it appeared and where it vanished. When the whole stationary
 //! scene shifted between the frames (pointing jitter of a beam that carries its artefacts
 //! with it), [`registered_changes`] moves the earlier picture by that shift first, so the
 //! scene's edges cancel too instead of leaving residue as bright as a faint beam.
 //! [`registered_changes_sized`] looks for a faint broad beam where the finest average
-//! shows nothing, on the difference without its own level (the two frames' backgrounds
-//! are measured apart).
+//! shows nothing.
 
 use super::beams::{Beam, find_changed, find_faint_beams};
 use super::cells::CellSums;
 use super::picture::{MAD_TO_SIGMA, Picture};
 use super::tuning::{
-    GAIN_MIN_PIXELS, GAIN_NOISES, GAIN_STRIDE, LEVEL_CELL, LEVEL_OUTLIER, SIDE_BLOCK, SIDE_NOISES,
+    BACKGROUND_STRIDE, GAIN_MIN_PIXELS, GAIN_NOISES, GAIN_STRIDE, LEVEL_CELL, LEVEL_OUTLIER,
+    SIDE_BLOCK, SIDE_NOISES,
 };
 
 /// What moved between two pictures.
@@ -66,39 +67,49 @@ fn changes_found(
     }
     let (w, h) = (after.width(), after.height());
     let earlier = Shifted::new(before, shift);
-    let gain = steady_gain(&earlier, before.noise(), after);
-    let g = gain as f32;
-    let a = after.light();
-    let as_ = after.saturated();
-    let difference: Vec<f32> = (0..a.len())
+    let (a, b) = (after.light(), &earlier.light);
+    let known = |i: usize| !earlier.unknown[i] && !after.is_saturated(i);
+    let place = |i: usize| ((i % w) as f64 + 0.5, (i / w) as f64 + 0.5);
+    // Each picture's light is taken above its own background, and two fits of a bright,
+    // structured background may settle a few gray levels apart: the later picture's light
+    // is put on the earlier one's background, and what is then left of the change over
+    // the whole frame (a plane) is the room's light that rose or fell.
+    let lower = background_drop(before, after, shift);
+    let on_earlier_background: Vec<f32> = a.iter().zip(&lower).map(|(a, l)| a - l).collect();
+    let change: Vec<f32> = (0..w * h)
         .map(|i| {
-            if earlier.unknown[i] || as_[i] {
-                0.0
+            if known(i) {
+                on_earlier_background[i] - b[i]
             } else {
-                a[i] - g * earlier.light[i]
+                0.0
             }
         })
         .collect();
+    let [level, slope_x, slope_y] = level_plane(&change, w, h);
+    let stayed: Vec<f32> = (0..w * h)
+        .map(|i| {
+            let (x, y) = place(i);
+            on_earlier_background[i] - (level + slope_x * x + slope_y * y) as f32
+        })
+        .collect();
+    let gain = steady_gain(&earlier, before.noise(), after, &stayed);
+    let g = gain as f32;
+    let difference: Vec<f32> = (0..w * h)
+        .map(|i| if known(i) { stayed[i] - g * b[i] } else { 0.0 })
+        .collect();
     let noise = after.noise().hypot(gain * before.noise());
     let noise_map = after.noise_map().of_difference(before.noise_map(), gain);
-    // Levelled only when a side needs the faint search, once for both.
-    let levelled = std::cell::OnceCell::new();
     let side = |sign: f32| {
-        let picture = |d: &[f32]| {
-            Picture::from_light(
-                w,
-                h,
-                one_side(d, w, h, sign, noise),
-                noise,
-                noise_map.clone(),
-            )
-        };
-        let beams = find_changed(&picture(&difference));
+        let picture = Picture::from_light(
+            w,
+            h,
+            one_side(&difference, w, h, sign, noise),
+            noise,
+            noise_map.clone(),
+        );
+        let beams = find_changed(&picture);
         match faint {
-            Some(radius) if beams.is_empty() => {
-                let levelled = levelled.get_or_init(|| without_level(&difference, w, h));
-                find_faint_beams(&picture(levelled), radius)
-            }
+            Some(radius) if beams.is_empty() => find_faint_beams(&picture, radius),
             _ => beams,
         }
     };
@@ -108,6 +119,31 @@ fn changes_found(
         vanished: side(-1.0).iter().map(|b| b.translated(back)).collect(),
         gain,
     }
+}
+
+/// How much lower `after`'s background lies than `before`'s (taken at the scene's `shift`)
+/// at every pixel, gray levels: both are smooth surfaces, so each row is evaluated every
+/// [`BACKGROUND_STRIDE`] pixels and interpolated between.
+fn background_drop(before: &Picture, after: &Picture, shift: [f64; 2]) -> Vec<f32> {
+    let (w, h) = (after.width(), after.height());
+    let drop = |x: f64, y: f64| {
+        before.background_at(x - shift[0], y - shift[1]) - after.background_at(x, y)
+    };
+    let mut out = Vec::with_capacity(w * h);
+    for y in 0..h {
+        let y = y as f64 + 0.5;
+        let mut x0 = 0;
+        let mut left = drop(0.5, y);
+        while x0 < w {
+            let x1 = (x0 + BACKGROUND_STRIDE).min(w - 1);
+            let right = drop(x1 as f64 + 0.5, y);
+            let span = (x1 - x0).max(1) as f64;
+            let end = if x1 == w - 1 { w } else { x1 };
+            out.extend((x0..end).map(|x| (left + (right - left) * (x - x0) as f64 / span) as f32));
+            (x0, left) = (end, right);
+        }
+    }
+    out
 }
 
 /// A picture's light resampled at a shift (bilinear), with the pixels that carry no
@@ -169,19 +205,18 @@ impl Shifted {
     }
 }
 
-/// A frames' difference without the plane its cells lie on: each frame's background is
-/// measured on its own, and where black clips heavy noise two frames' levels (and slopes)
-/// differ by about a gray level, a change spread over the whole frame that an average as
-/// wide as a broad beam shows. Cells holding a moved beam are left out of the fit as
-/// outliers.
-fn without_level(difference: &[f32], w: usize, h: usize) -> Vec<f32> {
-    let mut difference = difference.to_vec();
+/// The plane a frames' difference lies on (level at the origin, slopes per pixel along x
+/// and y), fitted to its cells' means: the room's light that rose or fell between the
+/// frames, or two backgrounds where black clips heavy noise, a change spread over the
+/// whole frame that an average as wide as a broad beam would show. Cells holding a moved
+/// beam are left out of the fit as outliers.
+fn level_plane(difference: &[f32], w: usize, h: usize) -> [f64; 3] {
     let CellSums {
         columns: cw,
         rows: ch,
         sums,
         counts,
-    } = CellSums::new(&difference, w, h, LEVEL_CELL);
+    } = CellSums::new(difference, w, h, LEVEL_CELL);
     let cells: Vec<([f64; 3], f64)> = (0..cw * ch)
         .map(|c| {
             let centre = |i: usize, side: usize| {
@@ -204,7 +239,7 @@ fn without_level(difference: &[f32], w: usize, h: usize) -> Vec<f32> {
             rhs += row * *level;
         }
         let Some(inverse) = normal.try_inverse() else {
-            return difference;
+            return plane;
         };
         let solution = inverse * rhs;
         plane = [solution[0], solution[1], solution[2]];
@@ -228,13 +263,7 @@ fn without_level(difference: &[f32], w: usize, h: usize) -> Vec<f32> {
         }
         keep = next;
     }
-    for (y, row) in difference.chunks_exact_mut(w).enumerate() {
-        let start = plane[0] + plane[2] * (y as f64 + 0.5);
-        for (x, v) in row.iter_mut().enumerate() {
-            *v -= (start + plane[1] * (x as f64 + 0.5)) as f32;
-        }
-    }
-    difference
+    plane
 }
 
 /// The difference times `sign`, with the blocks (and their neighbours) whose change clearly
@@ -278,18 +307,19 @@ fn one_side(difference: &[f32], w: usize, h: usize, sign: f32, noise: f64) -> Ve
     out
 }
 
-/// The median ratio of `after` to `before` (read noise `before_noise`) over pixels bright
-/// and unsaturated in both; 1 when too few pixels are.
-fn steady_gain(before: &Shifted, before_noise: f64, after: &Picture) -> f64 {
+/// The gain of the laser's light from `before` (read noise `before_noise`) to `after`
+/// (whose light is `stayed`, on `before`'s background and room light): the median ratio
+/// over the pixels bright and unsaturated in both; 1 when too few pixels are.
+fn steady_gain(before: &Shifted, before_noise: f64, after: &Picture, stayed: &[f32]) -> f64 {
     let floor_b = GAIN_NOISES * before_noise as f32;
     let floor_a = GAIN_NOISES * after.noise() as f32;
-    let (b, a) = (&before.light, after.light());
-    let mut ratios: Vec<f32> = (0..a.len())
+    let b = &before.light;
+    let mut ratios: Vec<f32> = (0..b.len())
         .step_by(GAIN_STRIDE)
         .filter(|&i| {
-            b[i] > floor_b && a[i] > floor_a && !before.unknown[i] && !after.is_saturated(i)
+            b[i] > floor_b && stayed[i] > floor_a && !before.unknown[i] && !after.is_saturated(i)
         })
-        .map(|i| a[i] / b[i])
+        .map(|i| stayed[i] / b[i])
         .collect();
     if ratios.len() < GAIN_MIN_PIXELS {
         return 1.0;

@@ -41,11 +41,8 @@ pub struct Picture {
     /// How far one pixel's value scatters, place by place (less than the read noise
     /// where black clips it).
     noise_map: NoiseMap,
-    /// The background level at the image centre, gray levels.
-    background: f64,
-    /// How far the background's cells scatter about the fitted surface beyond their noise,
-    /// gray levels: structure in the background no surface follows.
-    misfit: f64,
+    /// The background the light is measured above.
+    plane: Plane,
 }
 
 impl Picture {
@@ -85,8 +82,7 @@ impl Picture {
             saturated,
             noise,
             noise_map,
-            background: plane.surface.at(width as f64 / 2.0, height as f64 / 2.0),
-            misfit: plane.misfit,
+            plane,
         }
     }
 
@@ -125,13 +121,19 @@ impl Picture {
 
     /// The background level at the image centre, gray levels.
     pub fn background(&self) -> f64 {
-        self.background
+        self.background_at(self.width as f64 / 2.0, self.height as f64 / 2.0)
+    }
+
+    /// The background level the light at pixel position (`x`, `y`) is measured above,
+    /// gray levels.
+    pub fn background_at(&self, x: f64, y: f64) -> f64 {
+        self.plane.level_at(x, y)
     }
 
     /// How far the background departs from the surface fitted to it, beyond the noise,
     /// gray levels (0 where a backdrop or another frame took the background off).
     pub fn background_misfit(&self) -> f64 {
-        self.misfit
+        self.plane.misfit
     }
 
     /// This picture with its light replaced by `light` (what is left once stationary light
@@ -142,7 +144,10 @@ impl Picture {
             noise,
             noise_map,
             saturated: self.saturated.clone(),
-            misfit: 0.0,
+            plane: Plane {
+                misfit: 0.0,
+                ..self.plane
+            },
             ..*self
         }
     }
@@ -163,8 +168,12 @@ impl Picture {
             light,
             noise,
             noise_map,
-            background: 0.0,
-            misfit: 0.0,
+            plane: Plane {
+                surface: Surface::new(width, height, 0),
+                noise,
+                clipped: false,
+                misfit: 0.0,
+            },
         }
     }
 }
@@ -246,10 +255,13 @@ impl Surface {
 
 /// The background surface and the read noise; `clipped` when black clips enough of the
 /// background that a pixel's expected value is not the surface's.
+#[derive(Clone, Copy, Debug)]
 struct Plane {
     surface: Surface,
     noise: f64,
     clipped: bool,
+    /// How far the background's cells scatter about the fitted surface beyond their noise,
+    /// gray levels: structure in the background no surface follows.
     misfit: f64,
 }
 
@@ -259,15 +271,18 @@ impl Plane {
     fn background_row(&self, y: usize, width: usize) -> Vec<f32> {
         let y = y as f64 + 0.5;
         (0..width)
-            .map(|x| {
-                let level = self.surface.at(x as f64 + 0.5, y);
-                if self.clipped {
-                    (self.noise * clipped_normal_mean(level / self.noise)) as f32
-                } else {
-                    level as f32
-                }
-            })
+            .map(|x| self.level_at(x as f64 + 0.5, y) as f32)
             .collect()
+    }
+
+    /// The background at pixel position (`x`, `y`), as [`Self::background_row`] gives it.
+    fn level_at(&self, x: f64, y: f64) -> f64 {
+        let level = self.surface.at(x, y);
+        if self.clipped {
+            self.noise * clipped_normal_mean(level / self.noise)
+        } else {
+            level
+        }
     }
 
     /// Fits the plane to cell medians, rejecting cells with light, and measures the noise

@@ -305,6 +305,33 @@ fn changes_show_the_moved_beam_through_a_power_drift() {
 }
 
 #[test]
+fn light_from_the_room_that_rose_between_the_frames_is_not_a_change() {
+    // A broad stationary glow and a beam that stays, a beam that moves; between the
+    // frames the room light rose by 6 gray levels and sloped a little more. Each picture
+    // measures its light above its own background; compared on one background, only the
+    // moved beam changed.
+    let (stays, from, to) = ([470.0, 320.0], [160.0, 140.0], [250.0, 200.0]);
+    let frame = |room: f64, slope: [f64; 2], at: [f64; 2], seed: u64| {
+        Scene::new(W, H)
+            .background(room, slope)
+            .gaussian([320.0, 240.0], 220.0, 60.0)
+            .gaussian(stays, 50.0, 140.0)
+            .gaussian(at, 35.0, 90.0)
+            .noise(2.5, seed)
+            .frame()
+    };
+    let before = Picture::new(&frame(20.0, [0.0, 0.0], from, 41));
+    let after = Picture::new(&frame(26.0, [0.01, 0.0], to, 42));
+    let moved = changes(&before, &after);
+    assert!((moved.gain - 1.0).abs() < 0.02, "{}", moved.gain);
+    assert_eq!(moved.appeared.len(), 1, "{:?}", moved.appeared);
+    assert_eq!(moved.vanished.len(), 1, "{:?}", moved.vanished);
+    let (a, v) = (moved.appeared[0].centre, moved.vanished[0].centre);
+    assert!((a[0] - to[0]).hypot(a[1] - to[1]) < 1.5, "{a:?}");
+    assert!((v[0] - from[0]).hypot(v[1] - from[1]) < 1.5, "{v:?}");
+}
+
+#[test]
 fn a_faint_ghost_on_a_bright_beams_halo_does_not_pull_its_core_centre() {
     let truth = [300.3, 240.6];
     // A saturated beam with a broad halo, and a faint ghost on the halo's edge.

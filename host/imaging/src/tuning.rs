@@ -194,6 +194,10 @@ pub(crate) const CORE_WINDOW_RADII: f64 = 1.5;
 
 // What changed between two frames (`changes`)
 
+/// Two pictures' backgrounds are compared every this many pixels of a row, px (smooth
+/// surfaces, interpolated between).
+pub(crate) const BACKGROUND_STRIDE: usize = 16;
+
 /// Pixels brighter than this many noise deviations in both pictures set the gain ...
 pub(crate) const GAIN_NOISES: f32 = 10.0;
 
