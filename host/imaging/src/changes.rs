@@ -2,8 +2,8 @@
 //! on one background, with the room's light that rose or fell (a plane) and the laser's
 //! power drift (the gain that best maps the earlier picture's steady light onto the later
 //! one) taken out first, saturated pixels ignored (they show nothing), then searched for
-//! beams both ways. Everything that did not move cancels; a
-//! moved beam shows where it appeared and where it vanished. When the whole stationary
+//! beams both ways. Everything that did not move cancels; a moved beam shows where it
+//! appeared and where it vanished. When the whole stationary
 //! scene shifted between the frames (pointing jitter of a beam that carries its artefacts
 //! with it), [`registered_changes`] moves the earlier picture by that shift first, so the
 //! scene's edges cancel too instead of leaving residue as bright as a faint beam.
@@ -69,34 +69,31 @@ fn changes_found(
     let earlier = Shifted::new(before, shift);
     let (a, b) = (after.light(), &earlier.light);
     let known = |i: usize| !earlier.unknown[i] && !after.is_saturated(i);
-    let place = |i: usize| ((i % w) as f64 + 0.5, (i / w) as f64 + 0.5);
     // Each picture's light is taken above its own background, and two fits of a bright,
     // structured background may settle a few gray levels apart: the later picture's light
     // is put on the earlier one's background, and what is then left of the change over
     // the whole frame (a plane) is the room's light that rose or fell.
-    let lower = background_drop(before, after, shift);
-    let on_earlier_background: Vec<f32> = a.iter().zip(&lower).map(|(a, l)| a - l).collect();
-    let change: Vec<f32> = (0..w * h)
-        .map(|i| {
-            if known(i) {
-                on_earlier_background[i] - b[i]
-            } else {
-                0.0
-            }
-        })
+    let mut stayed = background_drop(before, after, shift);
+    for (lower, a) in stayed.iter_mut().zip(a) {
+        *lower = a - *lower;
+    }
+    let mut difference: Vec<f32> = (0..w * h)
+        .map(|i| if known(i) { stayed[i] - b[i] } else { 0.0 })
         .collect();
-    let [level, slope_x, slope_y] = level_plane(&change, w, h);
-    let stayed: Vec<f32> = (0..w * h)
-        .map(|i| {
-            let (x, y) = place(i);
-            on_earlier_background[i] - (level + slope_x * x + slope_y * y) as f32
-        })
-        .collect();
+    let [level, slope_x, slope_y] = level_plane(&difference, w, h);
+    for (y, row) in stayed.chunks_exact_mut(w).enumerate() {
+        let y = y as f64 + 0.5;
+        for (x, v) in row.iter_mut().enumerate() {
+            *v -= (level + slope_x * (x as f64 + 0.5) + slope_y * y) as f32;
+        }
+    }
     let gain = steady_gain(&earlier, before.noise(), after, &stayed);
     let g = gain as f32;
-    let difference: Vec<f32> = (0..w * h)
-        .map(|i| if known(i) { stayed[i] - g * b[i] } else { 0.0 })
-        .collect();
+    for (i, d) in difference.iter_mut().enumerate() {
+        if known(i) {
+            *d = stayed[i] - g * b[i];
+        }
+    }
     let noise = after.noise().hypot(gain * before.noise());
     let noise_map = after.noise_map().of_difference(before.noise_map(), gain);
     let side = |sign: f32| {

@@ -290,11 +290,17 @@ pub fn robust_fit(points: &[(Vec2, Vec2)], noise: f64, min_keep: usize) -> Optio
 /// fitted to all of them (at least 1): the residual variance over the degrees of freedom the
 /// six numbers leave (the unbiased estimate of least squares), 1 while there are none.
 fn residual_widening(model: &Response, points: &[(Vec2, Vec2)], noise: f64) -> f64 {
-    let freedom = (2 * points.len()).saturating_sub(6);
+    let freedom = residual_freedom(points.len());
     if freedom == 0 {
         return 1.0;
     }
     (squares(model, points) / (freedom as f64 * noise * noise)).max(1.0)
+}
+
+/// The degrees of freedom `sightings` (two coordinates each) leave once the model's six
+/// numbers are fitted to them.
+fn residual_freedom(sightings: usize) -> usize {
+    (2 * sightings).saturating_sub(6)
 }
 
 /// A model fitted to sightings by [`robust_fit`].
@@ -332,7 +338,7 @@ impl Fit {
     /// freedom, and the test allows for how little a few of them pin it).
     pub fn sure_at(&self, command: Vec2, noise: f64, tolerance: f64, confidence: f64) -> bool {
         let freedom = if self.widening > 1.0 {
-            (2 * self.kept.iter().filter(|k| **k).count()).saturating_sub(6)
+            residual_freedom(self.kept.iter().filter(|k| **k).count())
         } else {
             0
         };
