@@ -22,9 +22,9 @@ use super::sight::{Scales, sight};
 use super::tuning::{
     CAVITY_APART_RADII, CAVITY_CAUTIOUS_SHARE, CAVITY_MATCH_RADII, CAVITY_PROBE_GROWTH,
     CAVITY_PROBE_RADII, CAVITY_PROBE_SHARES, CAVITY_SEARCH_SHARE, CAVITY_TOLERANCE_RADII,
-    CHECK_CLEARANCE_RADII, CORE_REACH_RADII, DONE_CONFIDENCE, HIDDEN_RADII, MAX_CHECKS,
-    MAX_SIZE_RATIO, MIN_CHANGE_RADIUS_PX, PRIMARY, PRIMARY_CORE_SHARE, RESOLVED_RADII, SAME_STEP,
-    SEARCH_LEVELS, SECONDARY,
+    CHECK_CLEARANCE_RADII, CORE_REACH_RADII, DONE_CONFIDENCE, HIDDEN_RADII, MAX_SIZE_RATIO,
+    MIN_CHANGE_RADIUS_PX, PRIMARY, PRIMARY_CORE_SHARE, RESOLVED_RADII, SAME_STEP, SEARCH_LEVELS,
+    SECONDARY,
 };
 use crate::imaging::{
     Beam, Changes, core_centre, core_radius, nearest, registered_changes_sized, scene_shift,
@@ -104,10 +104,9 @@ impl CavityAgent {
             .tracker
             .command_for(target, self.command)
             .unwrap_or(self.command);
-        let settled = self.checks >= MAX_CHECKS && self.last_check_seen;
         let tolerance = CAVITY_TOLERANCE_RADII * self.scales.radius(SECONDARY);
         let sure = confirmed && self.tracker.sure_at(aim, tolerance, DONE_CONFIDENCE);
-        if sure || remaining <= 2 || settled {
+        if sure || remaining <= 2 {
             return self.send(aim, Step::Check(None), true);
         }
         if matches!(self.last, Step::Check(_)) && !self.last_check_seen {

@@ -348,9 +348,6 @@ pub const CORE_REACH_RADII: f64 = 2.0;
 /// A change farther than this many radii from the prediction is not the secondary.
 pub const CAVITY_MATCH_RADII: f64 = 3.0;
 
-/// Checks before the agent settles for its best map.
-pub const MAX_CHECKS: usize = 4;
-
 // A mount's map, its lost motion and the search for its feature (`model`)
 
 /// A search that found nothing on one grid goes on with grids this many times finer...
