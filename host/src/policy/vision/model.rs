@@ -742,7 +742,18 @@ impl Tracker {
             }
             around
         } else if let Some(grid) = self.search_grid {
+            // A grid point within half a spacing of a miss on both axes looks at much the
+            // same patch of the bench as the miss did: the feature is not there.
+            let covered = |c: &Vec2| {
+                self.missing
+                    .iter()
+                    .any(|m| (0..2).all(|a| (c[a] - m[a]).abs() < grid[a] / 2.0))
+            };
             square_rings(start, grid, 1..=SEARCH_RINGS)
+                .into_iter()
+                .map(|c| self.clamp(c))
+                .filter(|c| !covered(c))
+                .collect()
         } else {
             rings(start, [2.0 * px, 2.0 * py], 1..=6)
         };
@@ -977,6 +988,21 @@ mod tests {
         tracker.add_clean([0.0, 0.0], [100.0, 100.0]);
         tracker.add_clean([1500.0, 0.0], [350.0, 100.0]);
         assert_eq!(tracker.next_probe([0.0, 0.0]), [1500.0, 1500.0]);
+    }
+
+    #[test]
+    fn a_grid_search_skips_the_points_a_miss_already_looked_at() {
+        let mut tracker = Tracker::new([500.0, 500.0], [[-8000.0, 8000.0], [-6000.0, 6000.0]]);
+        tracker.search_grid = Some([2000.0, 1000.0]);
+        let first = tracker.next_probe([0.0, 0.0]);
+        assert!(distance(first, [0.0, 0.0]) > 999.0, "{first:?}");
+        // The other mirror's search looked at that patch through a nearby command.
+        tracker.add_missing([first[0] + 700.0, first[1] - 350.0]);
+        let next = tracker.next_probe([0.0, 0.0]);
+        assert!(
+            (next[0] - first[0]).abs() >= 1000.0 || (next[1] - first[1]).abs() >= 500.0,
+            "{first:?} then {next:?}"
+        );
     }
 
     #[test]
