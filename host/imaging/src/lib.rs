@@ -31,6 +31,11 @@ pub use noise::NoiseMap;
 pub use picture::Picture;
 pub use register::scene_shift;
 
+/// The beam with the most light.
+pub fn strongest(beams: &[Beam]) -> Option<&Beam> {
+    beams.iter().max_by(|a, b| a.signal.total_cmp(&b.signal))
+}
+
 /// The beam nearest to `point`.
 pub fn nearest(beams: &[Beam], point: [f64; 2]) -> Option<&Beam> {
     beams.iter().min_by(|a, b| {

@@ -6,7 +6,7 @@
 
 use super::locate::{Combined, Offset, Response, Sighting, combine, locate};
 use super::walk::{Walker, search_pattern};
-use crate::imaging::{Beam, Picture, find_beams};
+use crate::imaging::{Beam, Picture, find_beams, strongest};
 use crate::lab::calibrate::track::{self, Probe, distance};
 use crate::lab::rig::LabRig;
 
@@ -141,7 +141,7 @@ async fn measure(
         );
     };
     let probe_px = moved_by(mirror, &probe);
-    let stationary = brightest(&probe_result.stationary);
+    let stationary = strongest(&probe_result.stationary).copied();
     let mut beam = probe_result.to;
     let mut offsets: Vec<Offset> = Vec::new();
     let mut centrings = 0;
@@ -417,13 +417,6 @@ fn lost_track(mirror: &Mirror) -> anyhow::Error {
         "{}: its beam was not where the response calibration put it after a move; check the calibration and the mount",
         mirror.name
     )
-}
-
-fn brightest(beams: &[Beam]) -> Option<Beam> {
-    beams
-        .iter()
-        .max_by(|a, b| a.signal.total_cmp(&b.signal))
-        .copied()
 }
 
 fn median(mut values: Vec<f64>) -> Option<f64> {

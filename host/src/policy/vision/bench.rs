@@ -1,11 +1,11 @@
 //! The agent's one model of the bench: for a two-axis mount, where its feature lands,
 //! `image = offset + gain · command`, as a linear-Gaussian belief over the six numbers
 //! (offset 2, gain 2 x 2) with their covariance. Each sighting adds its information
-//! (recursive least squares in information form, so a sighting can also be taken out
-//! again); the measurement noise is the centre's scatter. From the belief follow every
-//! decision the agents make of it: whether a sighting is believed (a chi-square test of
-//! its innovation), where a command puts the feature and how surely, and whether the
-//! final command is within a tolerance at a stated confidence.
+//! (recursive least squares in information form); the measurement noise is the centre's
+//! scatter. From the belief follow every decision the agents make of it: whether a
+//! sighting is believed (a chi-square test of its innovation), where a command puts the
+//! feature and how surely, and whether the final command is within a tolerance at a
+//! stated confidence.
 
 use nalgebra::{Matrix2, Matrix2x6, Matrix6, Vector2, Vector6};
 
@@ -90,21 +90,16 @@ impl Response {
         [command[0] - self.origin[0], command[1] - self.origin[1]]
     }
 
-    /// Adds (`sign` 1) or takes out (-1) a sighting of the feature at `image` for
-    /// `command`, measured with covariance `noise` (px²).
-    fn absorb(&mut self, command: Vec2, image: Vec2, noise: Matrix2<f64>, sign: f64) {
+    /// Learns from a sighting of the feature at `image` for `command`, measured with
+    /// covariance `noise` (px²).
+    pub fn add(&mut self, command: Vec2, image: Vec2, noise: Matrix2<f64>) {
         let h = observation(self.relative(command));
         let Some(weight) = noise.try_inverse() else {
             return;
         };
         let ht_w = h.transpose() * weight;
-        self.information += sign * ht_w * h;
-        self.projected += sign * ht_w * Vector2::new(image[0], image[1]);
-    }
-
-    /// Learns from a sighting.
-    pub fn add(&mut self, command: Vec2, image: Vec2, noise: Matrix2<f64>) {
-        self.absorb(command, image, noise, 1.0);
+        self.information += ht_w * h;
+        self.projected += ht_w * Vector2::new(image[0], image[1]);
     }
 
     /// The mean and covariance of the six numbers, `None` when the information is not

@@ -451,11 +451,7 @@ impl MichelsonAgent {
     /// while the probed beam shows clean: stray spots would push the probes about.
     fn obstacle(&self, k: usize, centre: Vec2) -> Option<(Vec2, Vec2)> {
         let tracker = &self.trackers[k];
-        let latest = tracker
-            .clean
-            .iter()
-            .chain(&tracker.partial)
-            .max_by_key(|s| s.order)?;
+        let latest = tracker.latest()?;
         let j = 1 - k;
         if let Some((_, _, landing)) = self.parking(k, centre) {
             return Some((landing, latest.image));
@@ -479,13 +475,7 @@ impl MichelsonAgent {
 
     /// Whether `view` shows a beam where beam `k` was last seen (within the match radius).
     fn still_in_view(&self, k: usize, view: &View) -> bool {
-        let tracker = &self.trackers[k];
-        let Some(last) = tracker
-            .clean
-            .iter()
-            .chain(&tracker.partial)
-            .max_by_key(|s| s.order)
-        else {
+        let Some(last) = self.trackers[k].latest() else {
             return false;
         };
         let reach = MICHELSON_MATCH_RADII * self.scales.radius(k);

@@ -308,16 +308,11 @@ impl Tracker {
         self.play.band
     }
 
-    /// Where the load sits now, by the play estimated; `None` before the first move.
-    pub fn load(&self) -> Option<Vec2> {
-        self.load_now()
-    }
-
     /// The command that puts the load at `target` from the command `current` (the one last
     /// booked by [`Self::moved`]): an axis whose load must move goes past the target by half
     /// the lost motion on the side it approaches from; one already there stays.
     pub fn command_to_load(&self, target: Vec2, current: Vec2) -> Vec2 {
-        let load = self.load_now().unwrap_or(current);
+        let load = self.load().unwrap_or(current);
         play::command_for(target, load, self.play.band, current, SAME_STEP)
     }
 
@@ -344,8 +339,8 @@ impl Tracker {
         }
     }
 
-    /// Where the load sits now.
-    fn load_now(&self) -> Option<Vec2> {
+    /// Where the load sits now, by the play estimated; `None` before the first move.
+    pub fn load(&self) -> Option<Vec2> {
         self.loads(self.play).last().copied()
     }
 
@@ -415,7 +410,7 @@ impl Tracker {
 
     /// Where the load settles once the mount is sent from where it is now to `command`.
     fn settled(&self, command: Vec2) -> Vec2 {
-        match self.load_now() {
+        match self.load() {
             Some(now) => play::settle(now, command, self.play.band),
             None => command,
         }
@@ -456,7 +451,7 @@ impl Tracker {
     /// already there stays.
     pub fn command_for(&self, point: Vec2, from: Vec2) -> Option<Vec2> {
         let target = self.local_model()?.solve(point)?;
-        let load = self.load_now().unwrap_or(from);
+        let load = self.load().unwrap_or(from);
         let command = play::command_for(target, load, self.play.band, from, SAME_STEP);
         Some(self.clamp(command))
     }
@@ -858,15 +853,19 @@ impl Tracker {
             .or_else(|| self.rough_map().map(|(rough, _)| rough))
     }
 
+    /// The latest sighting, clean or partial.
+    pub fn latest(&self) -> Option<&Sight> {
+        self.clean
+            .iter()
+            .chain(&self.partial)
+            .max_by_key(|s| s.order)
+    }
+
     /// When the last move lost a feature that showed just before, the same move the other
     /// way from where it showed: it left the image that way, so the centre lies the other.
     fn back_the_other_way(&self) -> Option<Vec2> {
         let (lost, made) = self.lost_at?;
-        let last = self
-            .clean
-            .iter()
-            .chain(&self.partial)
-            .max_by_key(|s| s.order)?;
+        let last = self.latest()?;
         if last.order != made {
             return None;
         }

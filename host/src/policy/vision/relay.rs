@@ -39,7 +39,7 @@ use super::tuning::{
     NEAR_CENTRED_SHARE, NEAR_REPEATS, PASS_SHARE, RELAY_CAUTIOUS_SHARE, RELAY_PROBE_SHARES,
     RELAY_SEARCH_GRID_SHARE, SEARCH_GROWTH, STRAY_RADII, THROW_RADII, WHOLE_ENOUGH_EDGE,
 };
-use crate::imaging::Beam;
+use crate::imaging::{Beam, strongest};
 use crate::task::{BenchGeometry, RelayAction, RelayLimits};
 
 /// What the agent is doing for the current mirror.
@@ -71,8 +71,6 @@ pub struct RelayAgent {
     /// Each mirror's commands and the whole spots seen at the station it is steered at:
     /// its lost motion, and where its load is.
     mounts: [Tracker; 4],
-    /// The last action executed tilted the current mirror.
-    tilted: bool,
     station: usize,
     mirror: usize,
     phase: Phase,
@@ -115,8 +113,6 @@ pub struct RelayAgent {
     /// The near servo went round in a loop: its best whole spot passes at the far
     /// station's tolerance.
     near_settled: bool,
-    /// The last tilt went back from a throw: it teaches nothing about lost motion.
-    returning: bool,
 }
 
 impl RelayAgent {
@@ -141,7 +137,6 @@ impl RelayAgent {
                 }),
             cumulative: [0; 8],
             mounts: std::array::from_fn(|_| new_mount(limits)),
-            tilted: false,
             station: 7,
             mirror: 0,
             phase: Phase::Near,
@@ -165,7 +160,6 @@ impl RelayAgent {
             return_to: None,
             near_visits: Vec::new(),
             near_settled: false,
-            returning: false,
         };
         agent.near = agent.new_near_servo();
         agent.search = agent.new_search();
@@ -220,9 +214,6 @@ impl RelayAgent {
     pub fn decide(&mut self, frame: &Frame, rejected: bool, remaining: usize) -> RelayAction {
         if !rejected {
             self.apply_last();
-        }
-        if std::mem::take(&mut self.returning) {
-            self.tilted = false;
         }
         if let Some(action) = self.throw_under_way(frame, rejected) {
             return action;
@@ -300,11 +291,11 @@ impl RelayAgent {
             .copied()
             .collect();
         let Some((before, station, tilts)) = &self.previous else {
-            return strongest(&candidates);
+            return strongest(&candidates).copied();
         };
         if *station != self.station {
             self.still_swing = 0.0;
-            return strongest(&candidates);
+            return strongest(&candidates).copied();
         }
         let steady = 0.1 * radius;
         let tilted = *tilts != self.cumulative;
@@ -348,7 +339,7 @@ impl RelayAgent {
                 return Some(seen.beam);
             }
         }
-        strongest(&candidates)
+        strongest(&candidates).copied()
     }
 
     /// How far the current mirror was tilted since the cumulative tilts `then`, steps
@@ -401,7 +392,6 @@ impl RelayAgent {
         if let Some(load) = self.return_to {
             let view = View::of(self.backdrops.picture(self.station, frame));
             self.previous = Some((view, self.station, self.cumulative));
-            self.returning = true;
             let (tilt, arrives) = self.tilt_towards(load);
             if arrives {
                 self.return_to = None;
@@ -847,7 +837,6 @@ impl RelayAgent {
 
     /// Books the last action, now that it was executed.
     fn apply_last(&mut self) {
-        self.tilted = false;
         match self.last.take() {
             Some(RelayAction::Tilt {
                 mirror,
@@ -860,7 +849,6 @@ impl RelayAgent {
                 self.cumulative[2 * m + 1] += horizontal;
                 let to = self.command_of(m);
                 self.mounts[m].moved(from, to);
-                self.tilted = m == self.mirror;
             }
             Some(RelayAction::Measure { station }) => {
                 if station.index() != self.station {
@@ -904,13 +892,6 @@ fn tilt_by(mirror: usize, step: Vec2) -> RelayAction {
         vertical: step[0] as i32,
         horizontal: step[1] as i32,
     }
-}
-
-fn strongest(beams: &[Beam]) -> Option<Beam> {
-    beams
-        .iter()
-        .max_by(|a, b| a.signal.total_cmp(&b.signal))
-        .copied()
 }
 
 #[cfg(test)]

@@ -9,7 +9,7 @@ use optalign_optics::Frame;
 
 use super::model::{Vec2, distance};
 use super::tuning::{MERGED_LIGHT, MERGED_SIZE, SEE_RESIDUE_SHARE};
-use crate::imaging::{Beam, Changes, Picture, find_beams, registered_changes};
+use crate::imaging::{Beam, Changes, Picture, changes, find_beams, nearest, strongest};
 
 /// One frame, measured.
 pub struct View {
@@ -138,25 +138,17 @@ pub fn motion(
     expected: Option<Vec2>,
     avoid: Option<(Vec2, Vec2)>,
 ) -> Motion {
-    registered_motion(before, after, [0.0, 0.0], steady, expected, avoid)
+    motion_in(
+        &changes(&before.picture, &after.picture),
+        before,
+        after,
+        steady,
+        expected,
+        avoid,
+    )
 }
 
-/// [`motion`] when the stationary scene moved by `shift`, px, between the views (its
-/// jitter, measured on a stationary feature): the difference is taken on `before` moved
-/// by as much, so the scene cancels also where it has sharp edges.
-pub fn registered_motion(
-    before: &View,
-    after: &View,
-    shift: Vec2,
-    steady: f64,
-    expected: Option<Vec2>,
-    avoid: Option<(Vec2, Vec2)>,
-) -> Motion {
-    let moved = registered_changes(&before.picture, &after.picture, shift);
-    motion_in(&moved, before, after, steady, expected, avoid)
-}
-
-/// [`motion`] read from the views' difference `moved` (what [`registered_changes`] gave
+/// [`motion`] read from the views' difference `moved` (what [`changes`] or its registered form gave
 /// for them), for a caller that looks at the difference itself too.
 pub fn motion_in(
     moved: &Changes,
@@ -206,12 +198,9 @@ pub fn motion_in(
             .iter()
             .filter(|b| (0.33..3.0).contains(&(b.signal / t.signal.max(1.0))))
             .max_by(|a, b| a.signal.total_cmp(&b.signal))
-            .or_else(|| vanished.iter().max_by(|a, b| a.signal.total_cmp(&b.signal)))
+            .or_else(|| strongest(&vanished))
             .copied(),
-        None => vanished
-            .iter()
-            .max_by(|a, b| a.signal.total_cmp(&b.signal))
-            .copied(),
+        None => strongest(&vanished).copied(),
     };
     let moving_before: Vec<bool> = (0..before.beams.len())
         .map(|i| !pairs.iter().any(|p| p.0 == i))
@@ -251,15 +240,10 @@ pub fn motion_in(
 
 fn pick(beams: &[Beam], expected: Option<Vec2>) -> Option<Beam> {
     match expected {
-        Some(point) => beams
-            .iter()
-            .min_by(|a, b| distance(a.centre, point).total_cmp(&distance(b.centre, point)))
-            .copied(),
-        None => beams
-            .iter()
-            .max_by(|a, b| a.signal.total_cmp(&b.signal))
-            .copied(),
+        Some(point) => nearest(beams, point),
+        None => strongest(beams),
     }
+    .copied()
 }
 
 #[cfg(test)]

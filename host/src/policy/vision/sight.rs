@@ -77,10 +77,8 @@ impl Scales {
     /// The radius of feature `k`, px: measured, else the other feature's, else the
     /// typical beam in view, else a share of the image.
     pub fn radius(&self, k: usize) -> f64 {
-        let mut own = self.sizes[k].clone();
-        let mut other = self.sizes[1 - k].clone();
-        median(&mut own)
-            .or_else(|| median(&mut other))
+        self.known_radius(k)
+            .or_else(|| self.known_radius(1 - k))
             .or(self.typical)
             .unwrap_or(DEFAULT_RADIUS_SHARE * self.side.max(1.0))
     }
