@@ -23,8 +23,8 @@ use super::tuning::{
     BORDER_RADII, CHECK_APART_RADII, DONE_CONFIDENCE, GRID_VIEW_SHARE, IN_VIEW_RADII,
     MICHELSON_APART_RADII, MICHELSON_CAUTIOUS_SHARE, MICHELSON_MATCH_RADII, MICHELSON_PROBE_GROWTH,
     MICHELSON_PROBE_RADII, MICHELSON_PROBE_SHARES, MICHELSON_SEARCH_SHARE, MIN_SPREAD_SHARE,
-    PARK_SHARE, PARK_WHEN_SHARE, PROBE_VIEW_SHARE, RELOCATE_SHARE, SAME_STEP, SEARCH_GRID_SHARE,
-    TARGET_TURN, WHOLE_RADII,
+    PARK_SHARE, PARK_WHEN_SHARE, PROBE_VIEW_SHARE, SAME_STEP, SEARCH_GRID_SHARE, TARGET_TURN,
+    WHOLE_RADII,
 };
 use crate::imaging::Beam;
 use crate::task::{Action, MichelsonLimits};
@@ -54,9 +54,6 @@ enum Step {
     },
     /// Both beams placed apart near the centre; where the maps predicted them.
     Check { predicted: [Vec2; 2] },
-    /// Mirror `k` alone moved where its map puts its beam clear of the other, after a check
-    /// did not find it.
-    Relocate { k: usize },
     /// Both mirrors moved to their next points of a blind search, neither beam seen yet:
     /// one image searches two grids.
     Search { k: usize },
@@ -76,10 +73,8 @@ pub struct MichelsonAgent {
     checks: usize,
     /// The task's tolerance of the summed distance of the two beams from the centre, px.
     tolerance: f64,
-    /// A beam the last check did not find where its map put it.
-    missed: Option<usize>,
-    /// Mirrors whose map was refuted: a check and then a relocation did not find the beam
-    /// where the map put it. They are probed again, as if unmapped, until seen clean.
+    /// Mirrors whose map was refuted: a check did not find the beam where the map put it.
+    /// They are probed again, as if unmapped, until seen clean.
     refuted: [bool; 2],
     /// What the images taught about this bench: beam sizes, jitter.
     scales: Scales,
@@ -116,7 +111,6 @@ impl MichelsonAgent {
             last: Step::Start,
             checks: 0,
             tolerance: limits.success_error_px,
-            missed: None,
             refuted: [false; 2],
             scales: Scales::default(),
             spans,
@@ -175,10 +169,7 @@ impl MichelsonAgent {
         if confirmed || remaining <= 2 {
             return self.finish(centre);
         }
-        match self.missed {
-            Some(k) => self.relocate(k, size),
-            None => self.check(centre, size),
-        }
+        self.check(centre, size)
     }
 
     /// What the agent believes after its last decision, for the transcript: what the
@@ -193,7 +184,6 @@ impl MichelsonAgent {
                 format!("probe mirror {}, mirror {} parked", k + 1, 2 - k)
             }
             (_, Step::Check { .. }) => "check both beams apart near the centre".to_string(),
-            (_, Step::Relocate { k }) => format!("find beam {} clear of the other", k + 1),
             (_, Step::Search { .. }) => "search both mirrors".to_string(),
             (_, Step::Attribute { k, .. }) => format!("tell whether the beam seen is {}", k + 1),
         };
@@ -219,10 +209,6 @@ impl MichelsonAgent {
                 if self.observe_probe(&before, view, k, parked) {
                     self.refuted[k] = false;
                 }
-                false
-            }
-            Step::Relocate { k } => {
-                self.refuted[k] = !self.observe_probe(&before, view, k, None);
                 false
             }
             Step::Check { predicted } => self.observe_check(&before, view, predicted),
@@ -509,7 +495,9 @@ impl MichelsonAgent {
         {
             return false;
         }
-        self.missed = found.iter().position(Option::is_none);
+        for (k, seen) in found.iter().enumerate() {
+            self.refuted[k] |= seen.is_none();
+        }
         // Each beam where its map put it, by the chi-square test of the innovation.
         let believed =
             (0..2).all(|k| found[k].is_some_and(|c| self.trackers[k].believes(self.mirror(k), c)));
@@ -745,28 +733,6 @@ impl MichelsonAgent {
             predicted[k] = self.trackers[k].predict(u).unwrap_or(centre);
         }
         self.last = Step::Check { predicted };
-        self.action(false)
-    }
-
-    /// Moves mirror `k` alone to the far side of the centre from the other beam (on an image
-    /// of `size`, kept whole in view): the frame difference then shows which spot is its
-    /// beam, wherever its map put it.
-    fn relocate(&mut self, k: usize, size: Vec2) -> Action {
-        self.missed = None;
-        let centre = [size[0] / 2.0, size[1] / 2.0];
-        let other = self.trackers[1 - k]
-            .predict(self.mirror(1 - k))
-            .unwrap_or(centre);
-        let margin = (WHOLE_RADII * self.scales.radius(k)).min(size[0].min(size[1]) / 2.0);
-        let target = [0, 1].map(|a| {
-            (centre[a] + RELOCATE_SHARE * (centre[a] - other[a])).clamp(margin, size[a] - margin)
-        });
-        let u = self.trackers[k]
-            .command_for(target, self.mirror(k))
-            .unwrap_or(self.mirror(k));
-        self.before = [self.mirror(0), self.mirror(1)];
-        self.set_mirror(k, u);
-        self.last = Step::Relocate { k };
         self.action(false)
     }
 

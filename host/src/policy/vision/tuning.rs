@@ -267,13 +267,9 @@ pub const MIN_SPREAD_SHARE: f64 = 0.125;
 /// Half the separation of the two beams at successive checks, in beam radii.
 pub const CHECK_APART_RADII: [f64; 3] = [1.8, 2.4, 3.0];
 
-/// A check or a relocation keeps each beam's centre this many radii inside the image, so
+/// A check keeps each beam's centre this many radii inside the image, so
 /// that the border cuts neither.
 pub const WHOLE_RADII: f64 = 1.5;
-
-/// A beam a check did not find goes this many times the other beam's distance from the
-/// centre to the other side of it.
-pub const RELOCATE_SHARE: f64 = 1.5;
 
 /// A beam found farther than this many radii from a beam's prediction is not that beam.
 pub const MICHELSON_MATCH_RADII: f64 = 1.0;
