@@ -13,8 +13,7 @@
 //! up to the longest probe moved nothing, and the near servo starts again); where a
 //! station shows other strong light beside the spot, the spot is thrown clear of itself
 //! once per visit and back, and the station's stationary light, learned from the two
-//! frames, is taken off every later frame there (see `backdrops`). A near servo that keeps returning to the same tilt settles for
-//! its best spot within the far station's tolerance. Light lost at the far station is looked
+//! frames, is taken off every later frame there (see `backdrops`). Light lost at the far station is looked
 //! for there in views around the expected place (its response is known), then by going
 //! back to the near station. At C8, with a centred compact spot, it declares done.
 //! Every move of the camera places it a little differently: at C8, where the result is
@@ -36,7 +35,7 @@ use super::servo::{Servo, Spot, useful_probe};
 use super::tuning::{
     DONE_CONFIDENCE, DONE_SHARE, FAR_SEARCH_OVERLAP, FAR_SEARCH_RINGS, MAX_FAR_STEPS,
     MAX_SEARCH_SHARE, MAX_THROWS, MIN_NOISE_PX, MIN_REMAINING_TO_THROW, MOVED_SHARE,
-    NEAR_CENTRED_SHARE, NEAR_REPEATS, PASS_SHARE, RELAY_CAUTIOUS_SHARE, RELAY_PROBE_SHARES,
+    NEAR_CENTRED_SHARE, PASS_SHARE, RELAY_CAUTIOUS_SHARE, RELAY_PROBE_SHARES,
     RELAY_SEARCH_GRID_SHARE, SEARCH_GROWTH, STRAY_RADII, THROW_RADII, WHOLE_ENOUGH_EDGE,
 };
 use crate::imaging::{Beam, strongest};
@@ -108,11 +107,6 @@ pub struct RelayAgent {
     throw: Option<Throw>,
     /// Where the load goes back to after a throw.
     return_to: Option<Vec2>,
-    /// The loads the near servo sent the current mirror to since it started.
-    near_visits: Vec<Vec2>,
-    /// The near servo went round in a loop: its best whole spot passes at the far
-    /// station's tolerance.
-    near_settled: bool,
 }
 
 impl RelayAgent {
@@ -158,8 +152,6 @@ impl RelayAgent {
             backdrops: Backdrops::new(8),
             throw: None,
             return_to: None,
-            near_visits: Vec::new(),
-            near_settled: false,
         };
         agent.near = agent.new_near_servo();
         agent.search = agent.new_search();
@@ -550,14 +542,9 @@ impl RelayAgent {
         }
         self.near.observe(u, seen, centre, side);
         let near_station = 2 * self.mirror;
-        let centred_share = if self.near_settled {
-            PASS_SHARE
-        } else {
-            NEAR_CENTRED_SHARE
-        };
         if let Some(best) = self.near.best()
             && best.spot.whole
-            && distance(best.spot.at, centre) < centred_share * self.tolerance()
+            && distance(best.spot.at, centre) < NEAR_CENTRED_SHARE * self.tolerance()
             && best.tilt == u
         {
             let gain = self.near.gain();
@@ -576,23 +563,6 @@ impl RelayAgent {
             return self.act(measure(near_station + 1));
         }
         if let Some(next) = self.near.next(centre) {
-            // A servo sent back to the same load again and again learns nothing more
-            // there: its best whole spot, when it passes at the far station's tolerance,
-            // is as centred as this station makes it.
-            let repeats = self
-                .near_visits
-                .iter()
-                .filter(|v| distance(**v, next) < 1.0)
-                .count();
-            self.near_visits.push(next);
-            if repeats >= NEAR_REPEATS
-                && let Some(best) = self.near.best()
-                && best.spot.whole
-                && distance(best.spot.at, centre) < PASS_SHARE * self.tolerance()
-            {
-                self.near_settled = true;
-                return self.tilt_to(best.tilt);
-            }
             return self.tilt_to(next);
         }
         // Never seen here: search outwards around the start, wider each ring.
@@ -791,11 +761,9 @@ impl RelayAgent {
         }
     }
 
-    /// A new near servo for the current mirror, with no loads visited yet.
+    /// A new near servo for the current mirror.
     fn restart_near(&mut self) {
         self.near = self.new_near_servo();
-        self.near_visits.clear();
-        self.near_settled = false;
     }
 
     fn next_mirror(&mut self) {

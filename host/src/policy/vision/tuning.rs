@@ -75,9 +75,6 @@ pub const DONE_SHARE: f64 = 0.4;
 /// far station magnifies what is left by the lever ratio).
 pub const NEAR_CENTRED_SHARE: f64 = 0.1;
 
-/// A near servo sent to the same load this many times before is going round in a loop.
-pub const NEAR_REPEATS: usize = 2;
-
 /// Steps at a far station before going back to the near station to start again.
 pub const MAX_FAR_STEPS: usize = 10;
 
