@@ -1,20 +1,10 @@
 //! A camera frame made ready for measurement: the light above the background at every
-//! pixel. The background is a plane fitted robustly to cell means (ambient light and a
-//! slope cancel; cells holding light are rejected as outliers), or a quadratic surface where
-//! the cells show a glow that bends across the frame and the plane leaves it behind; how
-//! far the kept cells still scatter about the surface beyond their noise is the
-//! background's own misfit, which light must stand out of to be a beam (and when a fit started from
-//! the darkest cells lies clearly lower, light only adding, spots' tails over most of the
-//! frame had lifted the first; means, not medians, because
-//! a dark level close to zero clips the noise from below and only the mean of the clipped
-//! values is the level a dark pixel adds to a sum), the read noise comes from
-//! neighbouring-pixel differences (so a slope does not count as noise), a column streak
-//! that a bright spot smears through the whole frame is measured in the top and bottom
-//! bands and removed, and hot pixels (one pixel far brighter than all its neighbours) are
-//! replaced by their neighbours' mean. Saturated pixels are remembered: they carry no shape.
-//! Frames of any depth are measured at full precision, in gray levels of an 8-bit frame.
-//! Where black clips the noise, how far the pixels scatter varies with the light: a
-//! [`NoiseMap`] says it place by place.
+//! pixel, at full precision in gray levels of an 8-bit frame. The background is a plane (or
+//! a quadratic surface where a glow bends across the frame) fitted robustly to cell means,
+//! with its own misfit; the read noise comes from neighbouring-pixel differences, a smear
+//! column is removed, hot pixels are replaced by their neighbours' mean, saturated pixels
+//! are remembered, and a [`NoiseMap`] says how far pixels scatter where black clips the
+//! noise. docs/vision.md ("Seeing beams") gives the rules.
 
 use optalign_optics::Frame;
 

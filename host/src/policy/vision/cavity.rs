@@ -1,18 +1,10 @@
-//! The cavity agent: the bright primary stays put and its intensity centroid marks the
-//! target; the dim secondary is found in the difference between successive frames (it is
-//! the only thing that moves with the in-coupler; rings, halo, ghosts and stray light
-//! cancel, and the laser's power drift is taken out first; when the primary jittered, it
-//! carried its rings, halo and ghosts along, so the earlier frame is first moved by as
-//! much as the primary's core moved; it is looked for at its own size, on averages as
-//! wide as it where finer ones show nothing, so that a faint secondary in heavy noise
-//! still stands out). Nothing about the bench is assumed beyond the
-//! command ranges: the first probe is a cautious share of the range, later ones are sized
-//! from the measured response to move the secondary a useful number of its own radii;
-//! while it has not been seen, a search moves in big steps around the start, then covers
-//! the whole range on finer and finer grids. Probes along each axis give an affine
-//! motor-to-image map; the agent then commands a point just outside the primary's
-//! footprint to check the map where it matters, and declares done at the target the
-//! refined map gives.
+//! The cavity agent: the bright primary stays put and the centre of its core marks the
+//! target; the dim secondary is found in the difference between successive frames (the only
+//! thing that moves with the in-coupler; the earlier frame moved first by as much as the
+//! primary's core jittered, the secondary looked for at its own size). Probes map the
+//! in-coupler's response, a search covers the range while the secondary is unseen, checks
+//! beside the primary test the map, and the run is done when the model is sure at the final
+//! command. docs/vision.md ("Cavity") gives the whole procedure.
 
 use optalign_optics::Frame;
 

@@ -1,18 +1,11 @@
 //! The Michelson agent: learns each mirror's motor-to-image response by moving one mirror
-//! at a time and watching which beam moves (everything else, the other beam and stray
-//! light, stays where it was). It assumes nothing about the bench beyond the command
-//! ranges: the first probe is a cautious share of the range, and every later one is sized
-//! from the response measured so far to move the beam a useful distance for this camera
-//! and this beam (grown when the beam hardly moved, shrunk when it left the image). Each
-//! probe after the first also steers the beam towards the centre along what is already
-//! known, so it stays in view. While the second mirror is probed, the first mirror's beam
-//! is parked out of the way. With both maps known it places the two beams apart on either
-//! side of the centre, where both are seen whole. Each checked beam is believed when the
-//! chi-square test of its innovation passes; the maps are refitted with it (estimating lost
-//! motion from reversals), and the agent commands both beams to the centre (where they
-//! overlap in fringes) and declares done when the refitted models put each within half the
-//! task's tolerance there at a stated confidence, allowing for the scatter the sightings
-//! showed, and the models before the check agree; otherwise it checks again.
+//! at a time and watching which beam moves (everything else stays where it was), with
+//! probes sized from the response measured so far and steered to keep the beam in view;
+//! the other beam is parked out of the way while its mirror is known. With both maps known
+//! it checks both beams apart beside the centre, refits the maps with what the chi-square
+//! test believes, and declares done when the models put each beam within half the task's
+//! tolerance at the centre at a stated confidence. docs/vision.md ("Michelson") gives the
+//! whole procedure.
 
 use optalign_optics::Frame;
 

@@ -1,28 +1,10 @@
-//! The relay agent: aligns the mirrors in order along the beam. For mirror m it works at
-//! the near station of m's outgoing segment first, where a tilt moves the spot little:
-//! it finds the spot (searching outwards when it is off the sensor), learns the mirror's
-//! 2 x 2 response there from two probes (sized from the response measured so far: a
-//! cautious first one, then whatever moves the spot a useful share of the image; from the
-//! second mirror on it first assumes the previous mirror's response, scaled by the
-//! stations' distances, and probes only when a step shows that guess wrong) and
-//! centres it; then it moves to the far station, where the same tilt moves the spot
-//! farther by the ratio of the stations' distances (from the brief's bench geometry; when
-//! the bench did not give it, the far response is measured there), and centres it with
-//! that response, refined by the bench model. Features that stay put while the mirror
-//! tilts are stray light, remembered per station (so is all that shows once tilts adding
-//! up to the longest probe moved nothing, and the near servo starts again); where a
-//! station shows other strong light beside the spot, the spot is thrown clear of itself
-//! once per visit and back, and the station's stationary light, learned from the two
-//! frames, is taken off every later frame there (see `backdrops`). Light lost at the far station is looked
-//! for there in views around the expected place (its response is known), then by going
-//! back to the near station. At C8, with a centred compact spot, it declares done.
-//! Every move of the camera places it a little differently: at C8, where the result is
-//! judged, the spot's place is averaged over as many placements as the camera mover's
-//! repeatability (from the brief, or the spread the visits show) calls for.
-//! The servos work in where each mount's load is, not in the commands: each mirror's
-//! commands and the whole spots seen at the station it is steered at (until the camera
-//! moves) go to its tracker, whose play operator finds the mount's dead band where the
-//! sightings show one (see `model` and `play`); later commands go past the target by it.
+//! The relay agent: aligns the mirrors in order along the beam, each first at the near
+//! station of its outgoing segment (find the spot, learn the 2 x 2 response, centre it),
+//! then at the far station with that response scaled by the stations' distances; at C8,
+//! with a centred compact spot averaged over as many camera placements as the mover's
+//! repeatability calls for, it declares done. Stray light is remembered per station and
+//! taken off as a backdrop (`backdrops`); each mount's lost motion comes from its tracker
+//! (`model`, `play`). docs/vision.md ("Relay") gives the whole procedure.
 
 use nalgebra::{Matrix2, Vector2};
 use optalign_optics::{Frame, Station};

@@ -1,19 +1,10 @@
 //! Driving a spot to a target with a two-axis relative actuator: a trust-region servo over
-//! the bench model of the station's response (`bench::Response`). The model starts from a
-//! response given beforehand (measured elsewhere and scaled, or another mirror's: believed
-//! to within [`GAIN_PRIOR_SHARE`]), or from nothing, when two probes from the best tilt (one
-//! per axis) show it. Newton steps from the best tilt then go no longer than a trust radius
-//! that grows after a step that brought the spot closer and shrinks after one that did not
-//! (the next step starts from the best tilt again). Each sighting is weighed by its centre's
-//! scatter (the detector's for a whole spot; for one the sensor's edge cuts, its size: what
-//! shows of it moves the right way but less than the beam) and joins the model when the
-//! chi-square test of its innovation believes it. A model not yet confirmed by a step (a
-//! given guess, or probes of a cut spot) that the next sighting refutes, or whose step loses
-//! the spot or does no good, is dropped: the servo probes again from the best tilt, with
-//! probes sized from the response that failed; a confirmed one sets the sighting aside. A
-//! probe that lost the spot is tried the other way, then shorter; one that hardly moved it,
-//! longer; a response refuted again from the same best tilt is probed the other way round
-//! from the last.
+//! the bench model of the station's response (`bench::Response`), started from a response
+//! given beforehand (believed to within [`GAIN_PRIOR_SHARE`]) or from two probes. Each
+//! sighting is weighed by its centre's scatter and joins the model when the chi-square
+//! test of its innovation believes it; a model not yet confirmed by a step that the next
+//! sighting refutes, or whose step loses the spot or does no good, is dropped and probed
+//! again. docs/vision.md ("Guessed responses") gives the rules for probes and steps.
 
 use nalgebra::Matrix2;
 
