@@ -8,7 +8,7 @@ use serde::{Deserialize, Serialize};
 use super::fit::fit_affine;
 use super::track;
 use super::trust::{detector_sigma, response_doubts};
-use crate::imaging::{Picture, find_beams};
+use crate::imaging::{Picture, find_beams, strongest};
 use crate::lab::calibration::MirrorResponse;
 use crate::lab::rig::LabRig;
 use crate::lab::rigfile::task_axis_names;
@@ -157,10 +157,7 @@ pub async fn calibrate_response(
             matrix_px_per_step: fit.matrix,
             residual_rms_px: fit.residual_rms,
             points: steps.len(),
-            stationary_px: probe
-                .stationary
-                .iter()
-                .max_by(|a, b| a.signal.total_cmp(&b.signal))
+            stationary_px: strongest(&probe.stationary)
                 .map(|beam| track::anchor_centre(&before, beam)),
         },
         points,

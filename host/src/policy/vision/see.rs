@@ -148,8 +148,8 @@ pub fn motion(
     )
 }
 
-/// [`motion`] read from the views' difference `moved` (what [`changes`] or its registered form gave
-/// for them), for a caller that looks at the difference itself too.
+/// [`motion`] read from the views' difference `moved` (what [`changes`], or its registered
+/// form, gave for them), for a caller that looks at the difference itself too.
 pub fn motion_in(
     moved: &Changes,
     before: &View,

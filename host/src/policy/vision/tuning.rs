@@ -264,8 +264,8 @@ pub const MIN_SPREAD_SHARE: f64 = 0.125;
 /// Half the separation of the two beams at successive checks, in beam radii.
 pub const CHECK_APART_RADII: [f64; 3] = [1.8, 2.4, 3.0];
 
-/// A check keeps each beam's centre this many radii inside the image, so
-/// that the border cuts neither.
+/// A check keeps each beam's centre this many radii inside the image, so that the border
+/// cuts neither.
 pub const WHOLE_RADII: f64 = 1.5;
 
 /// A beam found farther than this many radii from a beam's prediction is not that beam.
