@@ -147,13 +147,9 @@ impl MichelsonAgent {
                 return self.attribute(k, appeared);
             }
             self.scale_probe(k, size);
-            let prefer = self.trackers[k]
-                .partial
-                .last()
-                .and_then(|s| self.border_axis(k, s.image, centre));
             let margin = IN_VIEW_RADII * self.scales.radius(k);
             let target = self.probe_target(k, size);
-            let u = self.trackers[k].next_probe_towards([0.0, 0.0], size, target, margin, prefer);
+            let u = self.trackers[k].next_probe_towards([0.0, 0.0], size, target, margin);
             if self.blind(k) && self.blind(1 - k) && !self.trackers[k].is_fresh() {
                 return self.search(k, u);
             }
@@ -441,7 +437,7 @@ impl MichelsonAgent {
             return Some((p, latest.image));
         }
         let merged = tracker.partial.iter().any(|s| s.order == latest.order)
-            && self.border_axis(k, latest.image, centre).is_none();
+            && !self.at_border(k, latest.image, centre);
         if !merged {
             return None;
         }
@@ -746,20 +742,11 @@ impl MichelsonAgent {
         }
     }
 
-    /// The axis that moves beam `k` seen at `point` away from the border it is cut by: 1
-    /// (vertical) at the top or bottom, 0 at the left or right (nominally, axis 1 of a mount
-    /// tilts horizontally and axis 2 vertically; the agent still measures signs and scales).
-    fn border_axis(&self, k: usize, point: Vec2, centre: Vec2) -> Option<usize> {
+    /// Whether beam `k` seen at `point` lies within [`BORDER_RADII`] of its radius of a
+    /// border of the image about `centre` (cut by it, not merged).
+    fn at_border(&self, k: usize, point: Vec2, centre: Vec2) -> bool {
         let border = BORDER_RADII * self.scales.radius(k);
-        let gap = |axis: usize| centre[axis] - (point[axis] - centre[axis]).abs();
-        let (horizontal, vertical) = (gap(0), gap(1));
-        if vertical < border && vertical < horizontal {
-            Some(1)
-        } else if horizontal < border {
-            Some(0)
-        } else {
-            None
-        }
+        (0..2).any(|axis| centre[axis] - (point[axis] - centre[axis]).abs() < border)
     }
 }
 

@@ -139,7 +139,7 @@ pub fn square_rings(centre: Vec2, spacing: Vec2, multiples: RangeInclusive<i32>)
 
 /// Eight commands around `centre` (the axes first, then the diagonals) at each multiple
 /// `k` of `spacing`.
-fn rings(centre: Vec2, spacing: Vec2, multiples: RangeInclusive<i32>) -> Vec<Vec2> {
+pub fn rings(centre: Vec2, spacing: Vec2, multiples: RangeInclusive<i32>) -> Vec<Vec2> {
     multiples
         .flat_map(|k| {
             let (sx, sy) = (spacing[0] * f64::from(k), spacing[1] * f64::from(k));
@@ -695,12 +695,6 @@ impl Tracker {
     /// do not yet span, or, while the feature has not been measured cleanly, a step away
     /// from where it showed partly, or an expanding search around the start.
     pub fn next_probe(&self, start: Vec2) -> Vec2 {
-        self.next_probe_preferring(start, None)
-    }
-
-    /// [`Self::next_probe`], trying moves of axis `prefer` first around a partial sighting
-    /// (a feature cut by the top or bottom border needs the axis that moves it vertically).
-    fn next_probe_preferring(&self, start: Vec2, prefer: Option<usize>) -> Vec2 {
         let [px, py] = self.probe;
         let candidates: Vec<Vec2> = if let Some(last) = self.clean.last() {
             let base = last.command;
@@ -730,12 +724,7 @@ impl Tracker {
             );
             out
         } else if let Some(last) = self.partial.last() {
-            let base = last.command;
-            let mut around = rings(base, self.probe, 1..=1);
-            if let Some(axis) = prefer {
-                around.sort_by_key(|c| usize::from(c[1 - axis] != base[1 - axis]));
-            }
-            around
+            rings(last.command, self.probe, 1..=1)
         } else if let Some(grid) = self.search_grid {
             // A grid point within half a spacing of a miss on both axes looks at much the
             // same patch of the bench as the miss did: the feature is not there.
@@ -785,23 +774,15 @@ impl Tracker {
     /// predict puts the feature nearest the centre, combined with a probe across it, short
     /// enough that the feature stays in view whichever way it goes (at the response
     /// measured along; either sign, then a third for a feature that left the image anyway):
-    /// the probe makes progress and is seen. Otherwise [`Self::next_probe`], trying axis
-    /// `prefer` first around a partial sighting.
-    pub fn next_probe_towards(
-        &self,
-        start: Vec2,
-        view: Vec2,
-        target: Vec2,
-        margin: f64,
-        prefer: Option<usize>,
-    ) -> Vec2 {
+    /// the probe makes progress and is seen. Otherwise [`Self::next_probe`].
+    pub fn next_probe_towards(&self, start: Vec2, view: Vec2, target: Vec2, margin: f64) -> Vec2 {
         if self.is_fresh() {
             return self.clamp([start[0] + self.probe[0], start[1]]);
         }
         self.rough_aim(target)
             .or_else(|| self.probe_across(view, target, margin))
             .or_else(|| self.back_the_other_way())
-            .unwrap_or_else(|| self.next_probe_preferring(start, prefer))
+            .unwrap_or_else(|| self.next_probe(start))
     }
 
     /// While the clean sightings fit no map, one fitted to the steering sightings (every
@@ -1008,18 +989,16 @@ mod tests {
     fn probes_across_while_centring_along_a_known_direction() {
         let mut tracker = Tracker::new([1500.0, 1500.0], [[-8000.0, 8000.0], [-6000.0, 6000.0]]);
         assert_eq!(
-            tracker.next_probe_towards([0.0, 0.0], [1920.0, 1080.0], [960.0, 540.0], 40.0, None),
+            tracker.next_probe_towards([0.0, 0.0], [1920.0, 1080.0], [960.0, 540.0], 40.0),
             [1500.0, 0.0]
         );
         // 0.2 px per step along the first axis: 500 px short of the target is 2500 steps.
         tracker.add_clean([0.0, 0.0], [160.0, 540.0]);
         tracker.add_clean([1500.0, 0.0], [460.0, 540.0]);
-        let next =
-            tracker.next_probe_towards([0.0, 0.0], [1920.0, 1080.0], [960.0, 540.0], 40.0, None);
+        let next = tracker.next_probe_towards([0.0, 0.0], [1920.0, 1080.0], [960.0, 540.0], 40.0);
         assert!(distance(next, [4000.0, 1500.0]) < 1e-6, "{next:?}");
         tracker.add_missing(next);
-        let next =
-            tracker.next_probe_towards([0.0, 0.0], [1920.0, 1080.0], [960.0, 540.0], 40.0, None);
+        let next = tracker.next_probe_towards([0.0, 0.0], [1920.0, 1080.0], [960.0, 540.0], 40.0);
         assert!(distance(next, [4000.0, -1500.0]) < 1e-6, "{next:?}");
     }
 
