@@ -8,15 +8,14 @@
 
 use optalign_optics::Frame;
 
-use super::model::{Sighting, Tracker, Vec2, distance};
+use super::model::{Sighting, Tracker, Vec2, distance, rings};
 use super::see::{Seen, View, alike, motion_in, stationary_pairs};
 use super::sight::{Scales, sight};
 use super::tuning::{
     CAVITY_APART_RADII, CAVITY_CAUTIOUS_SHARE, CAVITY_MATCH_RADII, CAVITY_PROBE_GROWTH,
     CAVITY_PROBE_RADII, CAVITY_PROBE_SHARES, CAVITY_SEARCH_SHARE, CAVITY_TOLERANCE_RADII,
-    CHECK_CLEARANCE_RADII, CORE_REACH_RADII, DONE_CONFIDENCE, HIDDEN_RADII, MAX_SIZE_RATIO,
-    MIN_CHANGE_RADIUS_PX, PRIMARY, PRIMARY_CORE_SHARE, RESOLVED_RADII, SAME_STEP, SEARCH_LEVELS,
-    SECONDARY,
+    CHECK_CLEARANCE_RADII, CORE_REACH_RADII, DONE_CONFIDENCE, HIDDEN_RADII, MIN_CHANGE_RADIUS_PX,
+    PRIMARY, PRIMARY_CORE_SHARE, RESOLVED_RADII, SAME_STEP, SEARCH_LEVELS, SECONDARY,
 };
 use crate::imaging::{
     Beam, Changes, core_centre, core_radius, nearest, registered_changes_sized, scene_shift,
@@ -165,20 +164,8 @@ impl CavityAgent {
                 .tracker
                 .tried_within(u, 0.25 * spacing[0].min(spacing[1]))
         };
-        let ring = [
-            [1.0, 0.0],
-            [-1.0, 0.0],
-            [0.0, 1.0],
-            [0.0, -1.0],
-            [1.0, 1.0],
-            [-1.0, 1.0],
-            [1.0, -1.0],
-            [-1.0, -1.0],
-        ];
-        let rings = [1.0, 2.0]
+        if let Some(u) = rings([0.0; 2], step, 1..=2)
             .into_iter()
-            .flat_map(|multiple| ring.map(|d| [0, 1].map(|a| d[a] * step[a] * multiple)));
-        if let Some(u) = rings
             .map(|u| self.tracker.clamp(u))
             .find(|&u| untried(u, step))
         {
@@ -259,13 +246,8 @@ impl CavityAgent {
         let expected_near = |centre: Vec2| {
             expected.is_none_or(|p| distance(centre, p) < CAVITY_MATCH_RADII * radius.max(hidden))
         };
-        // The secondary keeps its size and light: a change unlike it (a stray spot's
-        // flicker, a speck) is not the secondary.
-        let known = self.scales.known_radius(SECONDARY);
-        let like_secondary = |s: &Seen| {
-            s.change.size() >= MIN_CHANGE_RADIUS_PX
-                && known.is_none_or(|r| (0.5..MAX_SIZE_RATIO).contains(&(s.change.size() / r)))
-        };
+        // A change of a pixel or two (a stray spot's flicker, a speck) is not the secondary.
+        let like_secondary = |s: &Seen| s.change.size() >= MIN_CHANGE_RADIUS_PX;
         let appeared = moved
             .to
             .filter(|s| outside(s) && expected_near(s.beam.centre) && like_secondary(s));

@@ -319,9 +319,6 @@ pub const CAVITY_PROBE_GROWTH: f64 = 3.0;
 /// pixels (a stray spot's flicker, a hot pixel), never a measurable beam.
 pub const MIN_CHANGE_RADIUS_PX: f64 = 1.0;
 
-/// A change larger than this many of the secondary's known radii is not the secondary.
-pub const MAX_SIZE_RATIO: f64 = 1.6;
-
 /// A secondary that moved farther than this many of its radii shows whole in the change.
 pub const CAVITY_APART_RADII: f64 = 2.0;
 
