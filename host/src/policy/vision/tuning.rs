@@ -310,9 +310,11 @@ pub const CAVITY_PROBE_SHARES: [f64; 2] = [1.0 / 64.0, 1.0 / 3.0];
 pub const CAVITY_PROBE_RADII: f64 = 4.0;
 
 /// A change whose appearing and vanishing parts are closer than this many radii is a beam
-/// that moved too little to measure: the probe grows by [`PROBE_GROWTH`].
+/// that moved too little to measure: the probe grows by [`CAVITY_PROBE_GROWTH`].
 pub const RESOLVED_RADII: f64 = 2.0;
 
+/// Factor a cavity probe grows by after a move too small to resolve: three times longer
+/// takes any move of more than a third of [`RESOLVED_RADII`] past it in one step.
 pub const CAVITY_PROBE_GROWTH: f64 = 3.0;
 
 /// A change whose second-moment radius collapses below this, px, is a speck of a few
