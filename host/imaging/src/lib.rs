@@ -28,7 +28,7 @@ pub use changes::{Changes, changes, registered_changes, registered_changes_sized
 pub use core::{core_centre, core_radius};
 pub use gaussian::GaussianFit;
 pub use noise::NoiseMap;
-pub use picture::Picture;
+pub use picture::{Picture, median};
 pub use register::scene_shift;
 
 /// The beam with the most light.

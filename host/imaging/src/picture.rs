@@ -557,8 +557,8 @@ impl Histogram {
 /// The σ of a normal distribution is its median absolute deviation times this.
 pub(super) const MAD_TO_SIGMA: f64 = 1.4826;
 
-/// The median of the values, or `None` when there are none.
-pub(super) fn median(values: Vec<f64>) -> Option<f64> {
+/// The median of the values (the upper one of an even count), or `None` when there are none.
+pub fn median(values: Vec<f64>) -> Option<f64> {
     quantile_of(values, 0.5)
 }
 

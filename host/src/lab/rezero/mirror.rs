@@ -6,7 +6,7 @@
 
 use super::locate::{Combined, Offset, Response, Sighting, combine, locate};
 use super::walk::{Walker, search_pattern};
-use crate::imaging::{Beam, Picture, find_beams, strongest};
+use crate::imaging::{Beam, Picture, find_beams, median, strongest};
 use crate::lab::calibrate::track::{self, Probe, distance};
 use crate::lab::rig::LabRig;
 
@@ -91,7 +91,13 @@ async fn look(
         "{}: the response calibration says its axes do not move the beam",
         mirror.name
     );
-    let typical_size = median(seen.iter().map(Beam::size).collect()).unwrap_or(MIN_PROBE_PX);
+    let typical_size = median(
+        seen.iter()
+            .map(Beam::size)
+            .filter(|r| r.is_finite())
+            .collect(),
+    )
+    .unwrap_or(MIN_PROBE_PX);
     let probe_px = (PROBE_SIZES * typical_size)
         .max(MIN_PROBE_PX)
         .min(MAX_PROBE_SHARE * frame_side);
@@ -417,12 +423,6 @@ fn lost_track(mirror: &Mirror) -> anyhow::Error {
         "{}: its beam was not where the response calibration put it after a move; check the calibration and the mount",
         mirror.name
     )
-}
-
-fn median(mut values: Vec<f64>) -> Option<f64> {
-    values.retain(|v| v.is_finite());
-    values.sort_by(f64::total_cmp);
-    values.get(values.len() / 2).copied()
 }
 
 fn describe(steps: &[i32]) -> String {

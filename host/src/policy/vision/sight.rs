@@ -13,7 +13,7 @@ use super::tuning::{
     MAX_MISFIT, MIN_NOISE_PX, OVERLAP_RADII, SIGHT_MAX_SIZE_RATIO, SLIVER_EDGE, STEADY_SPREAD,
     TOUCH_BRIGHTER,
 };
-use crate::imaging::Beam;
+use crate::imaging::{Beam, median};
 
 /// What the images taught about this bench.
 #[derive(Clone, Debug, Default)]
@@ -37,14 +37,14 @@ impl Scales {
     pub fn learn_view(&mut self, view: &View) {
         let [w, h] = view.size();
         self.side = w.min(h);
-        let mut radii: Vec<f64> = view.beams.iter().map(Beam::size).collect();
-        if let Some(r) = median(&mut radii)
+        let radii: Vec<f64> = view.beams.iter().map(Beam::size).collect();
+        if let Some(r) = median(radii)
             && self.typical.is_none()
         {
             self.typical = Some(r);
         }
-        let mut spreads: Vec<f64> = view.beams.iter().map(|b| b.uncertainty).collect();
-        if let Some(u) = median(&mut spreads) {
+        let spreads: Vec<f64> = view.beams.iter().map(|b| b.uncertainty).collect();
+        if let Some(u) = median(spreads) {
             self.uncertainty = Some(u);
         }
     }
@@ -85,19 +85,19 @@ impl Scales {
 
     /// The known radius of feature `k`, when it was seen cleanly.
     pub fn known_radius(&self, k: usize) -> Option<f64> {
-        median(&mut self.sizes[k].clone())
+        median(self.sizes[k].clone())
     }
 
     /// The median major radius of feature `k` seen whole, once known.
     fn known_major(&self, k: usize) -> Option<f64> {
-        median(&mut self.majors[k].clone())
+        median(self.majors[k].clone())
     }
 
     /// The RMS displacement of stationary features between frames, px, once measured: from
     /// the median displacement (a pair that was not stationary after all does not count),
     /// which for Gaussian jitter in two dimensions is 0.83 times the RMS.
     fn jitter(&self) -> Option<f64> {
-        median(&mut self.steady.clone()).map(|m| m / 0.833)
+        median(self.steady.clone()).map(|m| m / 0.833)
     }
 
     /// How far a stationary feature may seem to move between two frames, px.
@@ -131,15 +131,6 @@ impl Scales {
             "steady_allowance_px": self.steady(),
         })
     }
-}
-
-/// The median of the values, when there are any.
-fn median(values: &mut [f64]) -> Option<f64> {
-    if values.is_empty() {
-        return None;
-    }
-    let mid = values.len() / 2;
-    Some(*values.select_nth_unstable_by(mid, f64::total_cmp).1)
 }
 
 /// Whether `beam` lies [`CLEAR_OF_BORDER_RADII`] of its major radii from every border of
