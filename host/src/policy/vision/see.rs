@@ -105,24 +105,17 @@ pub fn stationary_pairs(before: &[Beam], after: &[Beam], steady: f64) -> Vec<(us
 /// Where a change shows in one view: the view's own detection that covers the change and
 /// did not stay put between the frames, nearest first; else only the change itself.
 fn locate(blob: &Beam, beams: &[Beam], moving: &[bool]) -> Seen {
-    beams
+    let own = beams
         .iter()
         .zip(moving)
         .filter(|(b, moving)| **moving && distance(b.centre, blob.centre) < blob.size() + b.size())
         .map(|(b, _)| b)
-        .min_by(|a, b| distance(a.centre, blob.centre).total_cmp(&distance(b.centre, blob.centre)))
-        .map_or(
-            Seen {
-                beam: *blob,
-                whole: false,
-                change: *blob,
-            },
-            |b| Seen {
-                beam: *b,
-                whole: true,
-                change: *blob,
-            },
-        )
+        .min_by(|a, b| distance(a.centre, blob.centre).total_cmp(&distance(b.centre, blob.centre)));
+    Seen {
+        beam: *own.unwrap_or(blob),
+        whole: own.is_some(),
+        change: *blob,
+    }
 }
 
 /// The beam that moved from `before` to `after`: found in the frames' difference (what
