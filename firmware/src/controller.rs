@@ -565,7 +565,7 @@ impl<S: Storage> Controller<S> {
     }
 
     /// When authentication attempts are accepted again after failures (in the past when
-    /// they are accepted now); see [`crate::backoff`].
+    /// they are accepted now); see `crate::backoff`.
     pub fn authentication_reopens_at_us(&self) -> u64 {
         self.auth_backoff.reopens_at_us()
     }

@@ -7,10 +7,11 @@
 //! emit a delimiter first to flush a half-received frame at the other end.
 //!
 //! On an authenticated network session a frame's payload is the message followed by its
-//! [`Seal`] (counter and truncated MAC, see [`crate::seal`]): postcard messages delimit
-//! themselves, so what follows the message is the seal. [`encode_sealed_frame`] writes such
-//! frames; [`FrameDecoder::push_checked`] and [`FrameDecoder::feed_checked`] read them and
-//! check the seal against the receiver's [`Inbound`] before the message is decoded. The plain [`FrameDecoder::push`] and
+//! [`Seal`](crate::seal::Seal) (counter and truncated MAC, see [`crate::seal`]): postcard
+//! messages delimit themselves, so what follows the message is the seal.
+//! [`encode_sealed_frame`] writes such frames; [`FrameDecoder::push_checked`] and
+//! [`FrameDecoder::feed_checked`] read them and check the seal against the receiver's
+//! [`Inbound`] before the message is decoded. The plain [`FrameDecoder::push`] and
 //! [`FrameDecoder::feed`] accept unsealed frames only.
 
 use core::fmt;

@@ -44,7 +44,7 @@ pub fn registered_changes(before: &Picture, after: &Picture, shift: [f64; 2]) ->
 
 /// [`registered_changes`] of a beam of about `radius` px: on a side of the difference
 /// where the finest average shows nothing, a faint broad beam is looked for on wider ones
-/// (see [`find_faint_beams`]), once the difference's own level is taken out.
+/// (see `find_faint_beams`), once the difference's own level is taken out.
 pub fn registered_changes_sized(
     before: &Picture,
     after: &Picture,

@@ -204,7 +204,7 @@ impl Frame {
     }
 
     /// Decodes an image file's bytes (`format`, or guessed from the bytes when `None`), its
-    /// size checked against [`MAX_SIDE_PX`], [`MAX_PIXELS`] and [`MAX_DECODE_BYTES`] before
+    /// size checked against `MAX_SIDE_PX`, `MAX_PIXELS` and `MAX_DECODE_BYTES` before
     /// decoding. Colour is converted to luminance. 8-bit images stay 8-bit; deeper ones become
     /// 16-bit frames, or 12-bit frames when no value exceeds 4095 (12-bit data in 16-bit
     /// words, as many machine-vision cameras write it).

@@ -28,7 +28,7 @@ pub struct ErrorBasis {
     pub aligned_when: String,
 }
 
-/// The basis of `rig`'s score (as [`LabScorer`] computes it).
+/// The basis of `rig`'s score (as `LabScorer` computes it).
 pub fn error_basis(rig: &RigFile) -> ErrorBasis {
     match rig.task {
         TaskKind::Michelson => {

@@ -114,8 +114,8 @@ impl RunView {
         }
     }
 
-    /// Appends a transcript line to the tail, cut to [`TAIL_LINE_CHARS`], keeping the
-    /// last [`TAIL_LINES`].
+    /// Appends a transcript line to the tail, cut to `TAIL_LINE_CHARS`, keeping the
+    /// last `TAIL_LINES`.
     pub fn push_tail(&mut self, line: &str) {
         let cut: String = match line.char_indices().nth(TAIL_LINE_CHARS) {
             Some((end, _)) => format!("{} …", &line[..end]),

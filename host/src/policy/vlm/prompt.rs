@@ -1,9 +1,9 @@
 //! System prompts: one text template per task (`host/prompts/*.txt`, built in, or a file
 //! given with `--prompt`). Bounds and budgets are never written into a template: it names
-//! them as `{{placeholder}}` and they are filled from the run's [`TaskLimits`], so a scenario
-//! that changes a range changes the prompt with it. What is known of the bench's geometry
-//! (from the rig file or the scenario, through the brief) fills `{{bench}}`. An unknown
-//! placeholder is an error.
+//! them as `{{placeholder}}` and they are filled from the run's
+//! [`TaskLimits`](crate::task::TaskLimits), so a scenario that changes a range changes the
+//! prompt with it. What is known of the bench's geometry (from the rig file or the
+//! scenario, through the brief) fills `{{bench}}`. An unknown placeholder is an error.
 
 use std::path::Path;
 
