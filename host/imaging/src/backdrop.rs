@@ -8,6 +8,7 @@
 use optalign_optics::Frame;
 
 use super::cells::CellSums;
+use super::noise::NoiseMap;
 use super::picture::{Picture, median};
 use super::tuning::BACKDROP_CELL;
 
@@ -42,11 +43,8 @@ impl Backdrop {
             .enumerate()
             .map(|(i, (&pa, &pb))| {
                 let cell = (i / width / BACKDROP_CELL) * columns + (i % width) / BACKDROP_CELL;
-                f32::from(if sums_a.sums[cell] <= sums_b.sums[cell] {
-                    pa
-                } else {
-                    pb
-                }) * scale
+                let a_darker = sums_a.sums[cell] <= sums_b.sums[cell];
+                f32::from(if a_darker { pa } else { pb }) * scale
             })
             .collect();
         Some(Self {
@@ -78,26 +76,17 @@ impl Backdrop {
             .map(|(&p, b)| f32::from(p) * scale - b)
             .collect();
         let noise = picture.noise().hypot(self.noise);
-        let noise_map = picture.noise_map().of_difference(
-            &super::NoiseMap::uniform(self.width, self.height, self.noise),
-            1.0,
-        );
-        Some(picture.with_light(
-            without_offset(light, self.width, self.height),
-            noise,
-            noise_map,
-        ))
+        let stationary = NoiseMap::uniform(self.width, self.height, self.noise);
+        let noise_map = picture.noise_map().of_difference(&stationary, 1.0);
+        let light = without_offset(light, self.width, self.height);
+        Some(picture.with_light(light, noise, noise_map))
     }
 }
 
 /// `light` (`width` wide, `height` high) less the median of its cells' means.
 fn without_offset(mut light: Vec<f32>, width: usize, height: usize) -> Vec<f32> {
-    let sums = CellSums::new(&light, width, height, BACKDROP_CELL);
-    let means: Vec<f64> = sums
-        .sums
-        .iter()
-        .zip(&sums.counts)
-        .map(|(s, n)| s / n.max(1.0))
+    let means = CellSums::new(&light, width, height, BACKDROP_CELL)
+        .means()
         .collect();
     if let Some(offset) = median(means) {
         light.iter_mut().for_each(|v| *v -= offset as f32);

@@ -10,8 +10,7 @@
 //! [`find_faint_beams`] looks for faint broad beams on wider averages, against the noise
 //! the pixels carry place by place, and measures them on the averaged blocks.
 
-use std::collections::VecDeque;
-
+use super::core::pixel_range;
 use super::gaussian::{GaussianFit, GaussianFitter};
 use super::picture::Picture;
 use super::tuning::{
@@ -68,25 +67,24 @@ impl Beam {
     /// What a user should know about the beam before trusting its centre (empty: nothing):
     /// saturated, cut by the border, speckle, lobes joined.
     pub fn notes(&self) -> String {
-        let mut notes = Vec::new();
-        if self.saturated {
-            notes.push("saturated".to_string());
-        }
-        if self.clipped {
+        let cut = || {
             let fit = self.fit.map_or(String::new(), |f| {
                 format!(", Gaussian fit at {:.1},{:.1}", f.centre[0], f.centre[1])
             });
-            notes.push(format!(
+            format!(
                 "cut by the border ({:.0}% of peak there{fit})",
                 100.0 * self.edge_level
-            ));
-        }
-        if !self.localised {
-            notes.push("speckle, not a compact spot".to_string());
-        }
-        if self.parts > 1 {
-            notes.push(format!("{} lobes joined", self.parts));
-        }
+            )
+        };
+        let notes: Vec<String> = [
+            self.saturated.then(|| "saturated".to_string()),
+            self.clipped.then(cut),
+            (!self.localised).then(|| "speckle, not a compact spot".to_string()),
+            (self.parts > 1).then(|| format!("{} lobes joined", self.parts)),
+        ]
+        .into_iter()
+        .flatten()
+        .collect();
         notes.join("; ")
     }
 
@@ -186,18 +184,6 @@ struct Grid {
     reach: usize,
 }
 
-/// The blocks around one block, without allocating.
-struct Neighbours {
-    blocks: [usize; 8],
-    len: usize,
-}
-
-impl Neighbours {
-    fn iter(&self) -> impl Iterator<Item = usize> + '_ {
-        self.blocks[..self.len].iter().copied()
-    }
-}
-
 /// A connected bright region of blocks.
 struct Region {
     blocks: Vec<usize>,
@@ -290,22 +276,36 @@ impl Grid {
         ]
     }
 
-    /// The (up to eight) blocks around `block`.
-    fn neighbours(&self, block: usize) -> Neighbours {
+    /// The (up to eight) blocks around `block`, row by row.
+    fn neighbours(&self, block: usize) -> impl Iterator<Item = usize> + '_ {
         let (x, y) = (block % self.bw, block / self.bw);
-        let mut out = Neighbours {
-            blocks: [0; 8],
-            len: 0,
-        };
-        for ny in y.saturating_sub(1)..(y + 2).min(self.bh) {
-            for nx in x.saturating_sub(1)..(x + 2).min(self.bw) {
-                if (nx, ny) != (x, y) {
-                    out.blocks[out.len] = ny * self.bw + nx;
-                    out.len += 1;
+        (y.saturating_sub(1)..(y + 2).min(self.bh))
+            .flat_map(move |ny| {
+                (x.saturating_sub(1)..(x + 2).min(self.bw)).map(move |nx| ny * self.bw + nx)
+            })
+            .filter(move |&n| n != block)
+    }
+
+    /// Grows `blocks` breadth-first over the blocks labelled `free` that `joins` accepts,
+    /// each taking the label of the block it was reached from: the blocks reached, in order.
+    fn grow<L: Copy + PartialEq>(
+        &self,
+        label: &mut [L],
+        free: L,
+        mut blocks: Vec<usize>,
+        joins: impl Fn(usize) -> bool,
+    ) -> Vec<usize> {
+        let mut next = 0;
+        while let Some(&block) = blocks.get(next) {
+            next += 1;
+            for n in self.neighbours(block) {
+                if label[n] == free && joins(n) {
+                    label[n] = label[block];
+                    blocks.push(n);
                 }
             }
         }
-        out
+        blocks
     }
 
     /// Whether smoothed block `b` stands out of its noise: light there.
@@ -322,18 +322,7 @@ impl Grid {
                 continue;
             }
             seen[start] = true;
-            let mut blocks = vec![start];
-            let mut next = 0;
-            while next < blocks.len() {
-                let block = blocks[next];
-                next += 1;
-                for n in self.neighbours(block).iter() {
-                    if !seen[n] && self.bright(n) {
-                        seen[n] = true;
-                        blocks.push(n);
-                    }
-                }
-            }
+            let blocks = self.grow(&mut seen, false, vec![start], |n| self.bright(n));
             if blocks.len() < MIN_REGION_BLOCKS {
                 continue;
             }
@@ -364,34 +353,20 @@ impl Grid {
         const OUTSIDE: u32 = u32::MAX;
         const UNCLAIMED: u32 = u32::MAX - 1;
         const FAINT_CORE: u32 = u32::MAX - 2;
-        let peak = blocks
-            .iter()
-            .map(|&b| self.smooth[b])
-            .fold(f32::MIN, f32::max);
-        let level = CORE_SHARE * peak;
+        let level = CORE_SHARE * brightest(&self.smooth, &blocks);
+        let in_core = |b: usize| self.smooth[b] >= level;
         let mut label = vec![OUTSIDE; self.bw * self.bh];
         for &b in &blocks {
             label[b] = UNCLAIMED;
         }
-        let mut queue = VecDeque::new();
+        let mut seeds = Vec::new();
         let mut cores = 0u32;
         for &start in &blocks {
             if label[start] != UNCLAIMED || self.smooth[start] < level {
                 continue;
             }
-            let mut core = vec![start];
             label[start] = cores;
-            let mut next = 0;
-            while next < core.len() {
-                let block = core[next];
-                next += 1;
-                for n in self.neighbours(block).iter() {
-                    if label[n] == UNCLAIMED && self.smooth[n] >= level {
-                        label[n] = cores;
-                        core.push(n);
-                    }
-                }
-            }
+            let core = self.grow(&mut label, UNCLAIMED, vec![start], in_core);
             let core_peak = core
                 .iter()
                 .copied()
@@ -404,7 +379,7 @@ impl Grid {
                 }
                 continue;
             }
-            queue.extend(core);
+            seeds.extend(core);
             cores += 1;
         }
         if cores < 2 {
@@ -415,15 +390,7 @@ impl Grid {
                 label[b] = UNCLAIMED;
             }
         }
-        while let Some(block) = queue.pop_front() {
-            let id = label[block];
-            for n in self.neighbours(block).iter() {
-                if label[n] == UNCLAIMED {
-                    label[n] = id;
-                    queue.push_back(n);
-                }
-            }
-        }
+        self.grow(&mut label, UNCLAIMED, seeds, |_| true);
         let mut parts = vec![Vec::new(); cores as usize];
         for b in blocks {
             if let Some(part) = parts.get_mut(label[b] as usize) {
@@ -434,10 +401,7 @@ impl Grid {
     }
 
     fn describe(&self, blocks: Vec<usize>) -> Region {
-        let peak = blocks
-            .iter()
-            .map(|&b| self.smooth[b])
-            .fold(f32::MIN, f32::max);
+        let peak = brightest(&self.smooth, &blocks);
         let core = |b: usize| self.smooth[b] >= CORE_SHARE * peak;
         let (mut sum, mut sx, mut sy) = (0.0, 0.0, 0.0);
         for &b in blocks.iter().filter(|&&b| core(b)) {
@@ -450,7 +414,7 @@ impl Grid {
         let core_edge = blocks
             .iter()
             .copied()
-            .filter(|&b| core(b) && self.neighbours(b).iter().any(|n| !core(n)))
+            .filter(|&b| core(b) && self.neighbours(b).any(|n| !core(n)))
             .collect();
         Region {
             centre: [sx / sum.max(1e-9), sy / sum.max(1e-9)],
@@ -464,26 +428,23 @@ impl Grid {
     /// breadth-first spread out of every group's own blocks.
     fn partition(&self, regions: &[Region], groups: &[Vec<usize>]) -> Vec<u32> {
         let mut owner = vec![u32::MAX; self.bw * self.bh];
-        let mut queue = VecDeque::new();
+        let mut seeds = Vec::new();
         for (id, members) in groups.iter().enumerate() {
             for &r in members {
                 for &b in &regions[r].blocks {
                     owner[b] = id as u32;
-                    queue.push_back(b);
+                    seeds.push(b);
                 }
             }
         }
-        while let Some(block) = queue.pop_front() {
-            let id = owner[block];
-            for n in self.neighbours(block).iter() {
-                if owner[n] == u32::MAX {
-                    owner[n] = id;
-                    queue.push_back(n);
-                }
-            }
-        }
+        self.grow(&mut owner, u32::MAX, seeds, |_| true);
         owner
     }
+}
+
+/// The brightest of `blocks` in `values` (a grid's, row-major).
+fn brightest(values: &[f32], blocks: &[usize]) -> f32 {
+    blocks.iter().map(|&b| values[b]).fold(f32::MIN, f32::max)
 }
 
 /// The mean of `values` (a `bw` x `bh` grid, row-major) over the cells within `reach` of
@@ -633,13 +594,12 @@ struct Tail {
 impl Tail {
     /// `None` when the region is saturated or its blocks do not spread along both axes.
     fn of(picture: &Picture, grid: &Grid, region: &Region) -> Option<Self> {
-        let (w, h) = (picture.width(), picture.height());
         let brightest = region
             .blocks
             .iter()
             .copied()
             .max_by(|&i, &j| grid.means[i].total_cmp(&grid.means[j]))?;
-        if block_pixels(brightest, grid, w, h).any(|p| picture.is_saturated(p)) {
+        if block_pixels(brightest, grid, picture).any(|p| picture.is_saturated(p)) {
             return None;
         }
         let (centre, [cxx, cyy, cxy]) = block_moments(grid, &region.blocks)?;
@@ -703,29 +663,19 @@ struct Window<'a> {
 /// The pixels of `window` (above the moment floor), as runs along rows:
 /// `visit(y, x_from, x_to)` for each.
 fn owned_runs(window: &Window, mut visit: impl FnMut(usize, usize, usize)) {
-    let Window {
-        picture,
-        grid,
-        owner,
-        id,
-        centre,
-        half,
-    } = *window;
-    let (w, h) = (picture.width(), picture.height());
-    let x0 = (centre[0] - half[0]).floor().max(0.0) as usize;
-    let x1 = ((centre[0] + half[0]).ceil().max(0.0) as usize).min(w);
-    let y0 = (centre[1] - half[1]).floor().max(0.0) as usize;
-    let y1 = ((centre[1] + half[1]).ceil().max(0.0) as usize).min(h);
+    let (picture, grid) = (window.picture, window.grid);
+    let span = |axis: usize, side: usize| pixel_range(window.centre[axis], window.half[axis], side);
+    let (xs, ys) = (span(0, picture.width()), span(1, picture.height()));
     let floor = MOMENT_FLOOR_MISFITS * picture.background_misfit() as f32;
-    for y in y0..y1 {
-        let block_row = &owner[(y / BLOCK) * grid.bw..(y / BLOCK + 1) * grid.bw];
-        let smooth_row = &grid.smooth[(y / BLOCK) * grid.bw..(y / BLOCK + 1) * grid.bw];
-        let mut x = x0;
-        while x < x1 {
+    for y in ys {
+        let row = (y / BLOCK) * grid.bw..(y / BLOCK + 1) * grid.bw;
+        let (block_row, smooth_row) = (&window.owner[row.clone()], &grid.smooth[row]);
+        let mut x = xs.start;
+        while x < xs.end {
             let block = x / BLOCK;
-            let end = ((block + 1) * BLOCK).min(x1);
+            let end = ((block + 1) * BLOCK).min(xs.end);
             let above_floor = floor <= 0.0 || smooth_row[block] > floor;
-            if block_row[block] == id && above_floor {
+            if block_row[block] == window.id && above_floor {
                 visit(y, x, end);
             }
             x = end;
@@ -838,33 +788,19 @@ fn measure(
     } else {
         window_footprint(picture, grid, owner, id as u32, blocks)?
     };
-    let Footprint {
-        centre,
-        radii,
-        angle,
-        signal,
-        spread,
-        split,
-    } = footprint;
     // cov(cx, cy) = σ² Σ (x - cx)(y - cy) / S², σ the read noise and the background's
     // misfit together (each pixel's light is known no better than its background).
+    let (signal, split) = (footprint.signal, footprint.split);
     let gain = (picture.noise().hypot(picture.background_misfit()) / signal).powi(2);
-    let read = spread.map(|row| row.map(|g| gain * g));
+    let read = footprint.spread.map(|row| row.map(|g| gain * g));
     let covariance = split.map_or(read, |split| with_texture(read, split));
     let uncertainty = (covariance[0][0] + covariance[1][1]).sqrt();
-    let (w, h) = (picture.width(), picture.height());
-    let peak = blocks
-        .iter()
-        .map(|&b| f64::from(grid.means[b]))
-        .fold(f64::MIN, f64::max);
+    let peak = f64::from(brightest(&grid.means, blocks));
     // Cut by the border: it is still bright there (a faint rim touching it moves the
     // centroid by nothing worth a flag). Smoothed blocks on both sides of the ratio: the
     // brightest raw block of a speckled beam is one bright grain, far above the beam's
     // level, which would make a beam centred beyond the border look whole.
-    let smooth_peak = blocks
-        .iter()
-        .map(|&b| f64::from(grid.smooth[b]))
-        .fold(f64::MIN, f64::max);
+    let smooth_peak = f64::from(brightest(&grid.smooth, blocks));
     let at_border = blocks
         .iter()
         .filter(|&&b| {
@@ -876,15 +812,15 @@ fn measure(
     let clipped = at_border > CLIPPED_SHARE * smooth_peak;
     let saturated_pixels = blocks
         .iter()
-        .flat_map(|&b| block_pixels(b, grid, w, h))
+        .flat_map(|&b| block_pixels(b, grid, picture))
         .filter(|&i| picture.is_saturated(i))
         .count();
     let beam = Beam {
-        centre,
+        centre: footprint.centre,
         uncertainty,
         covariance,
-        radii,
-        angle_deg: angle.to_degrees(),
+        radii: footprint.radii,
+        angle_deg: footprint.angle.to_degrees(),
         signal,
         peak,
         saturated: saturated_pixels >= SATURATED_PIXELS,
@@ -929,18 +865,16 @@ fn faint_footprint(grid: &Grid, blocks: &[usize]) -> Option<Footprint> {
         .sqrt()
         .max(BLOCK as f64);
     let half = MOMENT_WINDOW_RADII * radius;
+    // A square window of side 2 half: (2 half)² pixels, each axis's Σ d² a third of half²
+    // per pixel.
+    let axis = (2.0 * half).powi(2) * half * half / 3.0;
     Some(Footprint {
         centre: fit.centre,
         radii: [radius, radius],
         angle: 0.0,
         signal: fit.peak * std::f64::consts::PI * fit.radius.powi(2) / 2.0,
         split: None,
-        // A square window of side 2 half: (2 half)² pixels, each axis's Σ d² a third of
-        // half² per pixel.
-        spread: [
-            [(2.0 * half).powi(2) * half * half / 3.0, 0.0],
-            [0.0, (2.0 * half).powi(2) * half * half / 3.0],
-        ],
+        spread: [[axis, 0.0], [0.0, axis]],
     })
 }
 
@@ -971,11 +905,9 @@ fn window_footprint(
 ) -> Option<Footprint> {
     // Start from the blocks' own moments.
     let (mut centre, [vxx, vyy, _]) = block_moments(grid, blocks)?;
-    let floor = BLOCK as f64;
-    let mut half = [
-        MOMENT_WINDOW_RADII * (2.0 * vxx.sqrt()).max(floor),
-        MOMENT_WINDOW_RADII * (2.0 * vyy.sqrt()).max(floor),
-    ];
+    // Half the window's side along an axis where the light's variance is `v`.
+    let half_for = |v: f64| MOMENT_WINDOW_RADII * (2.0 * v.sqrt()).max(BLOCK as f64);
+    let mut half = [vxx, vyy].map(half_for);
     let window = |centre, half| Window {
         picture,
         grid,
@@ -995,7 +927,7 @@ fn window_footprint(
             (moments.sxx / moments.s - shift[0].powi(2)).max(MIN_MOMENT_VARIANCE_PX2),
             (moments.syy / moments.s - shift[1].powi(2)).max(MIN_MOMENT_VARIANCE_PX2),
         ];
-        half = var.map(|v| MOMENT_WINDOW_RADII * (2.0 * v.sqrt()).max(floor));
+        half = var.map(half_for);
         if shift[0].hypot(shift[1]) < SETTLED_PX {
             break;
         }
@@ -1010,6 +942,7 @@ fn window_footprint(
     let cxx = m.sxx / m.s - mean[0].powi(2);
     let cyy = m.syy / m.s - mean[1].powi(2);
     let cxy = m.sxy / m.s - mean[0] * mean[1];
+    let gxy = m.gxy - m.n * mean[0] * mean[1];
     // Light only adds: a spot spreads along every direction. Moments that do not (a
     // variance of 0 or less along some direction) are those of noise and background
     // residue summed with both signs, not of a beam.
@@ -1028,14 +961,8 @@ fn window_footprint(
         split: split_covariance(&window(centre, half), cell),
         // About the centroid rather than the window's centre.
         spread: [
-            [
-                m.gxx - m.n * mean[0].powi(2),
-                m.gxy - m.n * mean[0] * mean[1],
-            ],
-            [
-                m.gxy - m.n * mean[0] * mean[1],
-                m.gyy - m.n * mean[1].powi(2),
-            ],
+            [m.gxx - m.n * mean[0].powi(2), gxy],
+            [gxy, m.gyy - m.n * mean[1].powi(2)],
         ],
     })
 }
@@ -1062,8 +989,9 @@ fn principal(cxx: f64, cyy: f64, cxy: f64) -> (f64, f64, f64) {
     (mean + diff, (mean - diff).max(0.0), angle)
 }
 
-/// The row-major pixel indices of a block.
-fn block_pixels(block: usize, grid: &Grid, w: usize, h: usize) -> impl Iterator<Item = usize> {
+/// The row-major pixel indices of a block of `picture`.
+fn block_pixels(block: usize, grid: &Grid, picture: &Picture) -> impl Iterator<Item = usize> {
+    let (w, h) = (picture.width(), picture.height());
     let (x0, y0) = ((block % grid.bw) * BLOCK, (block / grid.bw) * BLOCK);
     (y0..(y0 + BLOCK).min(h)).flat_map(move |y| (x0..(x0 + BLOCK).min(w)).map(move |x| y * w + x))
 }
@@ -1071,14 +999,14 @@ fn block_pixels(block: usize, grid: &Grid, w: usize, h: usize) -> impl Iterator<
 /// Mean absolute difference of horizontal neighbours beyond what the noise gives, over the
 /// mean light, on the beam's bright blocks: small for a smooth spot, large for speckle.
 fn roughness(picture: &Picture, grid: &Grid, blocks: &[usize], peak: f64) -> f64 {
-    let (w, h) = (picture.width(), picture.height());
+    let w = picture.width();
     let light = picture.light();
     let (mut differences, mut total, mut n) = (0.0, 0.0, 0.0);
     for &b in blocks
         .iter()
         .filter(|&&b| f64::from(grid.means[b]) >= f64::from(CORE_SHARE) * peak)
     {
-        for i in block_pixels(b, grid, w, h) {
+        for i in block_pixels(b, grid, picture) {
             if i % w + 1 >= w || picture.is_saturated(i) || picture.is_saturated(i + 1) {
                 continue;
             }
@@ -1103,13 +1031,12 @@ fn fit_gaussian(
     blocks: &[usize],
     beam: &Beam,
 ) -> Option<GaussianFit> {
-    let (w, h) = (picture.width(), picture.height());
     let block_noise = picture.noise() / BLOCK as f64;
     let floor = (FIT_FLOOR_NOISES * block_noise).max(FIT_FLOOR_SHARE * beam.peak);
     let mut fitter = GaussianFitter::new(beam.centre, beam.size().max(1.0));
     for &b in blocks {
         let mean = f64::from(grid.means[b]);
-        if mean <= floor || block_pixels(b, grid, w, h).any(|i| picture.is_saturated(i)) {
+        if mean <= floor || block_pixels(b, grid, picture).any(|i| picture.is_saturated(i)) {
             continue;
         }
         let c = grid.centre_of(b);

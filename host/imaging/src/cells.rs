@@ -35,4 +35,12 @@ impl CellSums {
             counts,
         }
     }
+
+    /// Each cell's mean, row-major.
+    pub(crate) fn means(&self) -> impl Iterator<Item = f64> + '_ {
+        self.sums
+            .iter()
+            .zip(&self.counts)
+            .map(|(s, n)| s / n.max(1.0))
+    }
 }

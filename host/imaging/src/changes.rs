@@ -12,7 +12,7 @@
 
 use super::beams::{Beam, find_changed, find_faint_beams};
 use super::cells::CellSums;
-use super::picture::{MAD_TO_SIGMA, Picture};
+use super::picture::{MAD_TO_SIGMA, Picture, kept, median, median_f32};
 use super::tuning::{
     BACKGROUND_STRIDE, GAIN_MIN_PIXELS, GAIN_NOISES, GAIN_STRIDE, LEVEL_CELL, LEVEL_OUTLIER,
     SIDE_BLOCK, SIDE_NOISES,
@@ -97,13 +97,8 @@ fn changes_found(
     let noise = after.noise().hypot(gain * before.noise());
     let noise_map = after.noise_map().of_difference(before.noise_map(), gain);
     let side = |sign: f32| {
-        let picture = Picture::from_light(
-            w,
-            h,
-            one_side(&difference, w, h, sign, noise),
-            noise,
-            noise_map.clone(),
-        );
+        let light = one_side(&difference, w, h, sign, noise);
+        let picture = Picture::from_light(w, h, light, noise, noise_map.clone());
         let beams = find_changed(&picture);
         match faint {
             Some(radius) if beams.is_empty() => find_faint_beams(&picture, radius),
@@ -208,29 +203,22 @@ impl Shifted {
 /// whole frame that an average as wide as a broad beam would show. Cells holding a moved
 /// beam are left out of the fit as outliers.
 fn level_plane(difference: &[f32], w: usize, h: usize) -> [f64; 3] {
-    let CellSums {
-        columns: cw,
-        rows: ch,
-        sums,
-        counts,
-    } = CellSums::new(difference, w, h, LEVEL_CELL);
-    let cells: Vec<([f64; 3], f64)> = (0..cw * ch)
-        .map(|c| {
-            let centre = |i: usize, side: usize| {
-                ((i * LEVEL_CELL) as f64 + (((i + 1) * LEVEL_CELL).min(side) as f64)) / 2.0
-            };
-            (
-                [1.0, centre(c % cw, w), centre(c / cw, h)],
-                sums[c] / counts[c].max(1.0),
-            )
-        })
+    let sums = CellSums::new(difference, w, h, LEVEL_CELL);
+    let centre = |i: usize, side: usize| {
+        ((i * LEVEL_CELL) as f64 + (((i + 1) * LEVEL_CELL).min(side) as f64)) / 2.0
+    };
+    let cw = sums.columns;
+    let cells: Vec<([f64; 3], f64)> = sums
+        .means()
+        .enumerate()
+        .map(|(c, mean)| ([1.0, centre(c % cw, w), centre(c / cw, h)], mean))
         .collect();
     let mut keep = vec![true; cells.len()];
     let mut plane = [0.0; 3];
     for _ in 0..5 {
         let mut normal = nalgebra::Matrix3::<f64>::zeros();
         let mut rhs = nalgebra::Vector3::<f64>::zeros();
-        for ((row, level), _) in cells.iter().zip(&keep).filter(|(_, k)| **k) {
+        for (row, level) in kept(&cells, &keep) {
             let row = nalgebra::Vector3::from(*row);
             normal += row * row.transpose();
             rhs += row * *level;
@@ -238,19 +226,12 @@ fn level_plane(difference: &[f32], w: usize, h: usize) -> [f64; 3] {
         let Some(inverse) = normal.try_inverse() else {
             return plane;
         };
-        let solution = inverse * rhs;
-        plane = [solution[0], solution[1], solution[2]];
+        plane = (inverse * rhs).into();
         let residual = |(row, level): &([f64; 3], f64)| {
             (level - plane[0] - plane[1] * row[1] - plane[2] * row[2]).abs()
         };
-        let mut kept: Vec<f64> = cells
-            .iter()
-            .zip(&keep)
-            .filter(|(_, k)| **k)
-            .map(|(c, _)| residual(c))
-            .collect();
-        let mid = kept.len() / 2;
-        let spread = MAD_TO_SIGMA * *kept.select_nth_unstable_by(mid, f64::total_cmp).1;
+        let residuals = kept(&cells, &keep).map(residual).collect();
+        let spread = MAD_TO_SIGMA * median(residuals).unwrap_or(0.0);
         let next: Vec<bool> = cells
             .iter()
             .map(|c| residual(c) <= LEVEL_OUTLIER * spread)
@@ -321,6 +302,5 @@ fn steady_gain(before: &Shifted, before_noise: f64, after: &Picture, stayed: &[f
     if ratios.len() < GAIN_MIN_PIXELS {
         return 1.0;
     }
-    let mid = ratios.len() / 2;
-    f64::from(*ratios.select_nth_unstable_by(mid, f32::total_cmp).1)
+    f64::from(median_f32(&mut ratios))
 }

@@ -15,12 +15,11 @@ pub fn core_centre(picture: &Picture, beam: &Beam, share: f64) -> Option<[f64; 2
     let light = picture.light();
     let mut centre = beam.centre;
     for _ in 0..CORE_PASSES {
-        let span = |c: f64, side: usize| window(c, half, side);
         let (mut s, mut sx, mut sy) = (0.0f64, 0.0f64, 0.0f64);
-        for y in span(centre[1], h) {
+        for y in pixel_range(centre[1], half, h) {
             let row = &light[y * w..(y + 1) * w];
             let (mut rs, mut rsx) = (0f32, 0f32);
-            for x in span(centre[0], w) {
+            for x in pixel_range(centre[0], half, w) {
                 let above = row[x] - level;
                 if above > 0.0 {
                     rs += above;
@@ -52,15 +51,15 @@ pub fn core_radius(
     let (w, h) = (picture.width(), picture.height());
     let reach = reach_radii * beam.size();
     let light = picture.light();
-    let bright = window(centre[1], reach, h)
-        .flat_map(|y| window(centre[0], reach, w).map(move |x| y * w + x))
+    let bright = pixel_range(centre[1], reach, h)
+        .flat_map(|y| pixel_range(centre[0], reach, w).map(move |x| y * w + x))
         .filter(|&i| light[i] > level || picture.is_saturated(i))
         .count();
     (bright as f64 / std::f64::consts::PI).sqrt()
 }
 
 /// The pixel indices within `half` of `c` along an image side of `side` pixels.
-fn window(c: f64, half: f64, side: usize) -> std::ops::Range<usize> {
+pub(crate) fn pixel_range(c: f64, half: f64, side: usize) -> std::ops::Range<usize> {
     let lo = (c - half).floor().max(0.0) as usize;
     let hi = ((c + half).ceil().max(0.0) as usize).min(side);
     lo..hi

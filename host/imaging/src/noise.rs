@@ -79,12 +79,8 @@ impl NoiseMap {
         noise: f64,
         level_per_count: f64,
     ) -> Self {
-        let CellSums {
-            columns,
-            rows,
-            sums,
-            counts,
-        } = CellSums::new(raw, width, height, NOISE_CELL);
+        let cells = CellSums::new(raw, width, height, NOISE_CELL);
+        let (columns, rows) = (cells.columns, cells.rows);
         let floor = noise * clipped_normal_spread(0.0);
         let mut spread = Vec::with_capacity(columns * rows);
         for cy in 0..rows {
@@ -92,8 +88,8 @@ impl NoiseMap {
                 let (mut sum, mut count) = (0.0, 0.0);
                 for ny in cy.saturating_sub(LEVEL_REACH)..(cy + LEVEL_REACH + 1).min(rows) {
                     for nx in cx.saturating_sub(LEVEL_REACH)..(cx + LEVEL_REACH + 1).min(columns) {
-                        sum += sums[ny * columns + nx];
-                        count += counts[ny * columns + nx];
+                        sum += cells.sums[ny * columns + nx];
+                        count += cells.counts[ny * columns + nx];
                     }
                 }
                 let mean = sum * level_per_count / count.max(1.0) / noise;

@@ -278,9 +278,8 @@ impl Plane {
     /// Fits the plane to cell medians, rejecting cells with light, and measures the noise
     /// from horizontal neighbour differences in the cells kept.
     fn fit(raw: &[u16], width: usize, height: usize, depth: Depth) -> Self {
-        let cell = (width.min(height) / CELLS_PER_SIDE)
-            .max(16)
-            .min(width.min(height).max(1));
+        let short = width.min(height);
+        let cell = (short / CELLS_PER_SIDE).max(16).min(short.max(1));
         let (cw, ch) = (width.div_ceil(cell), height.div_ceil(cell));
         let mut cells = Vec::with_capacity(cw * ch);
         for cy in 0..ch {
@@ -296,7 +295,6 @@ impl Plane {
                 if histogram.total == 0 {
                     continue;
                 }
-                let centre = [(x0 + x1) as f64 / 2.0, (y0 + y1) as f64 / 2.0];
                 let above_black = histogram.above_black();
                 let black = histogram.counts[0];
                 // Where black clips many pixels, the cell's mean is not its level: the
@@ -307,7 +305,7 @@ impl Plane {
                     Some(histogram.robust_mean())
                 };
                 cells.push(Cell {
-                    centre,
+                    centre: [(x0 + x1) as f64 / 2.0, (y0 + y1) as f64 / 2.0],
                     level,
                     bounds: [x0, y0, x1, y1],
                     black,
@@ -329,10 +327,8 @@ impl Plane {
         let known: Vec<bool> = cells.iter().map(|c| c.level.is_some()).collect();
         let flat = Surface::new(width, height, 3);
         let (mut plane, mut keep) = robust_surface(&cells, flat, known, PLANE_ROUNDS);
-        let darkest = quantile_of(
-            cells.iter().filter_map(|c| c.level).collect(),
-            DARKEST_START_SHARE,
-        );
+        let levels = cells.iter().filter_map(|c| c.level).collect();
+        let darkest = quantile_of(levels, DARKEST_START_SHARE);
         let dark: Vec<bool> = cells
             .iter()
             .map(|c| c.level.zip(darkest).is_some_and(|(l, d)| l <= d))
@@ -343,28 +339,22 @@ impl Plane {
             (plane, keep) = (low, low_keep);
         }
         let mut differences = Histogram::new(depth);
-        let kept_cells = || cells.iter().zip(&keep).filter(|(_, k)| **k).map(|(c, _)| c);
-        for Cell {
-            bounds: [x0, y0, x1, y1],
-            ..
-        } in kept_cells()
-        {
-            for y in (*y0..*y1).step_by(3) {
+        let kept_cells = || kept(&cells, &keep);
+        for &[x0, y0, x1, y1] in kept_cells().map(|c| &c.bounds) {
+            for y in (y0..y1).step_by(3) {
                 let row = &raw[y * width..(y + 1) * width];
-                for x in (*x0..(*x1).min(width - 1)).step_by(2) {
+                for x in (x0..x1.min(width - 1)).step_by(2) {
                     differences.add(row[x + 1].abs_diff(row[x]));
                 }
             }
         }
         let (black, total) = kept_cells().fold((0, 0), |(b, t), c| (b + c.black, t + c.total));
         let clipped = f64::from(black) > CLIPPED_DARK_SHARE * f64::from(total);
-        let noise = if clipped {
-            median(kept_cells().filter_map(|c| c.noise_above_black).collect())
-        } else {
-            None
-        }
-        .unwrap_or_else(|| differences.noise_from_differences())
-        .max(MIN_NOISE_STEPS * depth.level_per_count);
+        let noise = clipped
+            .then(|| median(kept_cells().filter_map(|c| c.noise_above_black).collect()))
+            .flatten()
+            .unwrap_or_else(|| differences.noise_from_differences())
+            .max(MIN_NOISE_STEPS * depth.level_per_count);
         // A cell's level is the mean of about `samples` pixels: that much of its scatter
         // about the surface is noise.
         let samples = kept_cells().map(|c| f64::from(c.total)).sum::<f64>()
@@ -380,12 +370,8 @@ impl Plane {
         let mut misfit = beyond_noise(scatter(&cells, &plane, &keep));
         // A glow that bends across the frame: a quadratic surface from the plane's cells,
         // when it explains most of what the plane leaves.
-        let (bowl, bowl_keep) = robust_surface(
-            &cells,
-            Surface { terms: 6, ..plane },
-            keep.clone(),
-            FIT_ROUNDS,
-        );
+        let quadratic = Surface { terms: 6, ..plane };
+        let (bowl, bowl_keep) = robust_surface(&cells, quadratic, keep.clone(), FIT_ROUNDS);
         let bowl_misfit = beyond_noise(scatter(&cells, &bowl, &bowl_keep));
         if bowl_keep.iter().filter(|k| **k).count() >= MIN_QUADRATIC_CELLS
             && bowl_misfit <= QUADRATIC_GAIN * misfit
@@ -463,14 +449,7 @@ impl Histogram {
     /// The bin of the smallest value with at least `share` of the counts at or below it.
     fn quantile_bin(&self, share: f64) -> usize {
         let wanted = (share * f64::from(self.total)).ceil().max(1.0) as u32;
-        let mut seen = 0;
-        for (bin, &count) in self.counts.iter().enumerate() {
-            seen += count;
-            if seen >= wanted {
-                return bin;
-            }
-        }
-        self.counts.len() - 1
+        reaching(&self.counts, wanted).unwrap_or(self.counts.len() - 1)
     }
 
     /// The smallest level with at least `share` of the counts at or below it.
@@ -488,16 +467,8 @@ impl Histogram {
         for (bin, &count) in self.counts.iter().enumerate() {
             deviations[bin.abs_diff(median_bin)] += count;
         }
-        let half = self.total.div_ceil(2);
-        let mut seen = 0;
-        let mad = deviations
-            .iter()
-            .position(|&count| {
-                seen += count;
-                seen >= half
-            })
-            .unwrap_or(0) as f64
-            * self.depth.step();
+        let mad =
+            reaching(&deviations, self.total.div_ceil(2)).unwrap_or(0) as f64 * self.depth.step();
         // Half the pixels of a dark level near black read 0, which shrinks the MAD far
         // below the noise: the spread above black keeps the cut out of the noise's tail.
         let spread = (MAD_TO_SIGMA * mad)
@@ -554,6 +525,24 @@ impl Histogram {
     }
 }
 
+/// The first bin at which the running total of `counts` reaches `wanted`.
+fn reaching(counts: &[u32], wanted: u32) -> Option<usize> {
+    let mut seen = 0;
+    counts.iter().position(|&count| {
+        seen += count;
+        seen >= wanted
+    })
+}
+
+/// The items of `items` whose flag in `keep` is set.
+pub(crate) fn kept<'a, T>(items: &'a [T], keep: &'a [bool]) -> impl Iterator<Item = &'a T> {
+    items
+        .iter()
+        .zip(keep)
+        .filter(|(_, k)| **k)
+        .map(|(item, _)| item)
+}
+
 /// The σ of a normal distribution is its median absolute deviation times this.
 pub(super) const MAD_TO_SIGMA: f64 = 1.4826;
 
@@ -574,11 +563,8 @@ fn quantile_of(mut values: Vec<f64>, share: f64) -> Option<f64> {
 /// The robust scatter (1.4826 times the median absolute residual) of the kept cells'
 /// levels about `surface`, gray levels.
 fn scatter(cells: &[Cell], surface: &Surface, keep: &[bool]) -> f64 {
-    let residuals = cells
-        .iter()
-        .zip(keep)
-        .filter(|(_, k)| **k)
-        .filter_map(|(c, _)| {
+    let residuals = kept(cells, keep)
+        .filter_map(|c| {
             c.level
                 .map(|l| (l - surface.at(c.centre[0], c.centre[1])).abs())
         })
@@ -606,13 +592,8 @@ fn robust_surface(
                 })
             })
             .collect();
-        let kept: Vec<f64> = residuals
-            .iter()
-            .zip(&keep)
-            .filter(|(_, k)| **k)
-            .map(|(r, _)| r.abs())
-            .collect();
-        let spread = MAD_TO_SIGMA * median(kept).unwrap_or(0.0);
+        let kept_residuals = kept(&residuals, &keep).map(|r| r.abs()).collect();
+        let spread = MAD_TO_SIGMA * median(kept_residuals).unwrap_or(0.0);
         let limit = CELL_OUTLIER * spread.max(0.5);
         let next: Vec<bool> = residuals.iter().map(|r| r.abs() <= limit).collect();
         if next == keep || next.iter().filter(|k| **k).count() < surface.terms {
@@ -628,7 +609,7 @@ fn least_squares_surface(cells: &[Cell], keep: &[bool], surface: Surface) -> Opt
     let n = surface.terms;
     let mut normal = nalgebra::DMatrix::<f64>::zeros(n, n);
     let mut rhs = nalgebra::DVector::<f64>::zeros(n);
-    for (cell, _) in cells.iter().zip(keep).filter(|(_, k)| **k) {
+    for cell in kept(cells, keep) {
         let terms = surface.terms_at(cell.centre[0], cell.centre[1]);
         let row = nalgebra::DVector::from_column_slice(&terms[..n]);
         normal += &row * row.transpose();
@@ -724,7 +705,7 @@ fn remove_column_streaks(light: &mut [f32], width: usize, height: usize, noise: 
 }
 
 /// The median of a slice (reordered).
-fn median_f32(values: &mut [f32]) -> f32 {
+pub(crate) fn median_f32(values: &mut [f32]) -> f32 {
     let mid = values.len() / 2;
     *values.select_nth_unstable_by(mid, f32::total_cmp).1
 }

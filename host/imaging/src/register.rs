@@ -7,7 +7,7 @@
 //! scene, it would leave residue where there was none, so a move under half a pixel counts
 //! as none.
 
-use super::core::core_centre;
+use super::core::{core_centre, pixel_range};
 use super::tuning::{SHIFT_STRIDE, SHIFT_WINDOW_RADII};
 use super::{Beam, Picture};
 
@@ -49,11 +49,7 @@ fn misfits(
     shifts: [[f64; 2]; 2],
 ) -> Option<[f64; 2]> {
     let (w, h) = (after.width(), after.height());
-    let span = |c: f64, side: usize| {
-        let lo = (c - half).floor().max(0.0) as usize;
-        let hi = ((c + half).ceil().max(0.0) as usize).min(side);
-        (lo..hi).step_by(SHIFT_STRIDE)
-    };
+    let span = |c: f64, side: usize| pixel_range(c, half, side).step_by(SHIFT_STRIDE);
     let light = after.light();
     let mut sums = [[0.0f64; 3]; 2];
     for y in span(centre[1], h) {
@@ -63,10 +59,7 @@ fn misfits(
                 continue;
             }
             let point = |s: [f64; 2]| [x as f64 + 0.5 - s[0], y as f64 + 0.5 - s[1]];
-            let (Some(b0), Some(b1)) = (
-                sample(before, point(shifts[0])),
-                sample(before, point(shifts[1])),
-            ) else {
+            let [Some(b0), Some(b1)] = shifts.map(|s| sample(before, point(s))) else {
                 continue;
             };
             let a = f64::from(light[i]);
