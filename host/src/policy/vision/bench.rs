@@ -1,18 +1,21 @@
 //! The agent's one model of the bench: for a two-axis mount, where its feature lands,
-//! `image = offset + gain · command`, as a linear-Gaussian belief over the six numbers
-//! (offset 2, gain 2 x 2) with their covariance. Each sighting adds its information
+//! `image = offset + gain · command + Σ band[axis] · dir[axis]`, as a linear-Gaussian
+//! belief over the ten numbers (offset 2, gain 2 x 2, and for each axis the shift a dead
+//! band between motor and load puts on the feature after a move one way rather than the
+//! other, 2 each) with their covariance. An axis whose band the data do not show is given
+//! no direction (`dir` 0), and its band stays at the prior's zero. Each sighting adds its information
 //! (recursive least squares in information form); the measurement noise is the centre's
 //! scatter. From the belief follow every decision the agents make of it: whether a
 //! sighting is believed (a chi-square test of its innovation), where a command puts the
 //! feature and how surely, and whether the final command is within a tolerance at a
 //! stated confidence.
 
-use nalgebra::{Matrix2, Matrix2x6, Matrix6, Vector2, Vector6};
+use nalgebra::{Matrix2, SMatrix, SVector, Vector2};
 
 use super::model::{Affine, Vec2};
 use super::tuning::{
-    CHI2_MEDIAN, CORE_EXHAUSTIVE, CORE_SHARE, GATE_CONFIDENCE, PRIOR_GAIN_PX_PER_STEP,
-    PRIOR_OFFSET_PX, WIDENING_ROUNDS, WIDENING_SETTLED,
+    CHI2_MEDIAN, CORE_EXHAUSTIVE, CORE_SHARE, GATE_CONFIDENCE, PRIOR_BAND_PX,
+    PRIOR_GAIN_PX_PER_STEP, PRIOR_OFFSET_PX, WIDENING_ROUNDS, WIDENING_SETTLED,
 };
 
 /// The chi-square quantile of two degrees of freedom at probability `p`: that distribution
@@ -43,12 +46,28 @@ pub fn sure_within(cov: Matrix2<f64>, tolerance: f64, confidence: f64, freedom: 
     largest * quantile(confidence, freedom) <= tolerance * tolerance
 }
 
-/// The observation matrix of a command (relative to the model's origin).
-fn observation(u: Vec2) -> Matrix2x6<f64> {
-    Matrix2x6::new(
-        1.0, 0.0, u[0], u[1], 0.0, 0.0, //
-        0.0, 1.0, 0.0, 0.0, u[0], u[1],
-    )
+/// How many numbers the model holds.
+const PARAMETERS: usize = 10;
+
+type Vector = SVector<f64, PARAMETERS>;
+type Matrix = SMatrix<f64, PARAMETERS, PARAMETERS>;
+
+/// One sighting: the command, the direction each axis last moved in (+1, -1; 0 where
+/// unknown or no band is modelled) and where the feature showed.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Point {
+    pub command: Vec2,
+    pub dir: Vec2,
+    pub image: Vec2,
+}
+
+/// The observation matrix of a command (relative to the model's origin) reached with the
+/// axes last moving in `dir`.
+fn observation(u: Vec2, dir: Vec2) -> SMatrix<f64, 2, PARAMETERS> {
+    SMatrix::<f64, 2, PARAMETERS>::from_row_slice(&[
+        1.0, 0.0, u[0], u[1], 0.0, 0.0, dir[0], 0.0, dir[1], 0.0, //
+        0.0, 1.0, 0.0, 0.0, u[0], u[1], 0.0, dir[0], 0.0, dir[1],
+    ])
 }
 
 /// The belief about one mount's response, in information form about a command `origin`
@@ -56,8 +75,8 @@ fn observation(u: Vec2) -> Matrix2x6<f64> {
 #[derive(Clone, Debug)]
 pub struct Response {
     origin: Vec2,
-    information: Matrix6<f64>,
-    projected: Vector6<f64>,
+    information: Matrix,
+    projected: Vector,
 }
 
 impl Response {
@@ -71,14 +90,15 @@ impl Response {
         Self::with_prior(origin, nothing, PRIOR_OFFSET_PX, PRIOR_GAIN_PX_PER_STEP)
     }
 
-    /// A prior centred on `mean` (a nominal response), with standard deviations
-    /// `offset_sd` px and `gain_sd` px per step.
+    /// A prior centred on `mean` (a nominal response, no dead band), with standard
+    /// deviations `offset_sd` px and `gain_sd` px per step ([`PRIOR_BAND_PX`] for a band).
     pub fn with_prior(origin: Vec2, mean: Affine, offset_sd: f64, gain_sd: f64) -> Self {
         let at = mean.predict(origin);
         let [[a, b], [c, d]] = mean.gain;
-        let x = Vector6::new(at[0], at[1], a, b, c, d);
-        let (o, g) = (offset_sd.powi(-2), gain_sd.powi(-2));
-        let information = Matrix6::from_diagonal(&Vector6::new(o, o, g, g, g, g));
+        let x = Vector::from_column_slice(&[at[0], at[1], a, b, c, d, 0.0, 0.0, 0.0, 0.0]);
+        let (o, g, l) = (offset_sd.powi(-2), gain_sd.powi(-2), PRIOR_BAND_PX.powi(-2));
+        let information =
+            Matrix::from_diagonal(&Vector::from_column_slice(&[o, o, g, g, g, g, l, l, l, l]));
         Self {
             origin,
             projected: information * x,
@@ -90,91 +110,107 @@ impl Response {
         [command[0] - self.origin[0], command[1] - self.origin[1]]
     }
 
-    /// Learns from a sighting of the feature at `image` for `command`, measured with
-    /// covariance `noise` (px²).
-    pub fn add(&mut self, command: Vec2, image: Vec2, noise: Matrix2<f64>) {
-        let h = observation(self.relative(command));
+    /// Learns from a sighting `point`, measured with covariance `noise` (px²).
+    pub fn add(&mut self, point: Point, noise: Matrix2<f64>) {
+        let h = observation(self.relative(point.command), point.dir);
         let Some(weight) = noise.try_inverse() else {
             return;
         };
         let ht_w = h.transpose() * weight;
         self.information += ht_w * h;
-        self.projected += ht_w * Vector2::new(image[0], image[1]);
+        self.projected += ht_w * Vector2::new(point.image[0], point.image[1]);
     }
 
-    /// The mean and covariance of the six numbers, `None` when the information is not
+    /// The mean and covariance of the ten numbers, `None` when the information is not
     /// positive definite (cannot happen with a prior, short of overflow).
-    fn state(&self) -> Option<(Vector6<f64>, Matrix6<f64>)> {
+    fn state(&self) -> Option<(Vector, Matrix)> {
         let cholesky = self.information.cholesky()?;
         Some((cholesky.solve(&self.projected), cholesky.inverse()))
     }
 
-    /// The most likely map.
-    pub fn mean(&self) -> Option<Affine> {
+    /// The most likely map for commands reached with the axes last moving in `dir`.
+    pub fn mean(&self, dir: Vec2) -> Option<Affine> {
         let (x, _) = self.state()?;
         let [[a, b], [c, d]] = [[x[2], x[3]], [x[4], x[5]]];
         let [o0, o1] = self.origin;
+        let band = [0, 1].map(|row| dir[0] * x[6 + row] + dir[1] * x[8 + row]);
         Some(Affine {
-            offset: [x[0] - a * o0 - b * o1, x[1] - c * o0 - d * o1],
+            offset: [
+                x[0] - a * o0 - b * o1 + band[0],
+                x[1] - c * o0 - d * o1 + band[1],
+            ],
             gain: [[a, b], [c, d]],
         })
     }
 
-    /// Where the feature shows for `command` and the covariance of that place (px²) from
-    /// what the model does not know (the detector's scatter not included).
-    pub fn predict(&self, command: Vec2) -> Option<(Vec2, Matrix2<f64>)> {
+    /// The shift each axis's dead band puts on the feature after a move the positive way,
+    /// px (columns: the axes).
+    pub fn band(&self) -> Option<[[f64; 2]; 2]> {
+        let (x, _) = self.state()?;
+        Some([[x[6], x[8]], [x[7], x[9]]])
+    }
+
+    /// Where the feature shows for `command` reached with the axes last moving in `dir`,
+    /// and the covariance of that place (px²) from what the model does not know (the
+    /// detector's scatter not included).
+    pub fn predict(&self, command: Vec2, dir: Vec2) -> Option<(Vec2, Matrix2<f64>)> {
         let (x, p) = self.state()?;
-        let h = observation(self.relative(command));
+        let h = observation(self.relative(command), dir);
         let mean = h * x;
         Some(([mean[0], mean[1]], h * p * h.transpose()))
     }
 
     /// The squared Mahalanobis distance of a sighting from the model's prediction, with
     /// the sighting's own covariance `noise` added to the prediction's.
-    pub fn surprise(&self, command: Vec2, image: Vec2, noise: Matrix2<f64>) -> Option<f64> {
-        let (mean, cov) = self.predict(command)?;
-        let miss = Vector2::new(image[0] - mean[0], image[1] - mean[1]);
+    pub fn surprise(&self, point: Point, noise: Matrix2<f64>) -> Option<f64> {
+        let (mean, cov) = self.predict(point.command, point.dir)?;
+        let miss = Vector2::new(point.image[0] - mean[0], point.image[1] - mean[1]);
         let inverse = (cov + noise).try_inverse()?;
         Some((miss.transpose() * inverse * miss)[0])
     }
 
     /// Whether the model believes a sighting: its innovation passes the chi-square test at
     /// [`GATE_CONFIDENCE`].
-    pub fn believes(&self, command: Vec2, image: Vec2, noise: Matrix2<f64>) -> bool {
-        self.surprise(command, image, noise)
+    pub fn believes(&self, point: Point, noise: Matrix2<f64>) -> bool {
+        self.surprise(point, noise)
             .is_none_or(|d2| d2 <= chi2_quantile(GATE_CONFIDENCE))
     }
 }
 
-/// The model of `points` (command, image) each with an isotropic scatter of `noise` px.
-fn model_of<'a>(points: impl Iterator<Item = &'a (Vec2, Vec2)> + Clone, noise: f64) -> Response {
+/// The model of `points` each with an isotropic scatter of `noise` px.
+pub fn model_of<'a>(points: impl Iterator<Item = &'a Point> + Clone, noise: f64) -> Response {
     let n = points.clone().count().max(1) as f64;
-    let origin = [0, 1].map(|a| points.clone().map(|p| p.0[a]).sum::<f64>() / n);
+    let origin = [0, 1].map(|a| points.clone().map(|p| p.command[a]).sum::<f64>() / n);
     let r = Matrix2::identity() * noise * noise;
     let mut model = Response::broad(origin);
-    for (u, z) in points {
-        model.add(*u, *z, r);
+    for point in points {
+        model.add(*point, r);
     }
     model
 }
 
 /// The sum of squared misses of `subset` from `model`, px².
-fn squares(model: &Response, subset: &[(Vec2, Vec2)]) -> f64 {
-    let Some(map) = model.mean() else {
-        return f64::INFINITY;
-    };
+pub fn squares(model: &Response, subset: &[Point]) -> f64 {
     subset
         .iter()
-        .map(|(u, z)| {
-            let p = map.predict(*u);
-            (p[0] - z[0]).powi(2) + (p[1] - z[1]).powi(2)
+        .map(|p| {
+            model.mean(p.dir).map_or(f64::INFINITY, |map| {
+                let at = map.predict(p.command);
+                (at[0] - p.image[0]).powi(2) + (at[1] - p.image[1]).powi(2)
+            })
         })
         .sum()
 }
 
+/// How far `point` shows from where `map` puts it, px.
+fn miss(map: &Affine, point: &Point) -> f64 {
+    let at = map.predict(point.command);
+    (at[0] - point.image[0]).hypot(at[1] - point.image[1])
+}
+
 /// The model of the [`CORE_SHARE`] of `points` it fits best (at least `min_keep`), `None`
 /// when that is all of them.
-fn core(points: &[(Vec2, Vec2)], noise: f64, min_keep: usize) -> Option<Response> {
+fn core(points: &[Point], noise: f64, min_keep: usize) -> Option<Response> {
     let keep = ((CORE_SHARE * points.len() as f64).ceil() as usize).max(min_keep);
     if keep >= points.len() {
         return None;
@@ -183,7 +219,7 @@ fn core(points: &[(Vec2, Vec2)], noise: f64, min_keep: usize) -> Option<Response
         return (0u32..1 << points.len())
             .filter(|mask| mask.count_ones() as usize == keep)
             .map(|mask| {
-                let subset: Vec<(Vec2, Vec2)> = (0..points.len())
+                let subset: Vec<Point> = (0..points.len())
                     .filter(|i| mask & (1 << i) != 0)
                     .map(|i| points[i])
                     .collect();
@@ -196,13 +232,11 @@ fn core(points: &[(Vec2, Vec2)], noise: f64, min_keep: usize) -> Option<Response
     let mut subset = points.to_vec();
     let mut model = model_of(subset.iter(), noise);
     while subset.len() > keep {
-        let map = model.mean()?;
-        let miss = |p: &(Vec2, Vec2)| {
-            let at = map.predict(p.0);
-            (at[0] - p.1[0]).hypot(at[1] - p.1[1])
-        };
-        let worst =
-            (0..subset.len()).max_by(|&a, &b| miss(&subset[a]).total_cmp(&miss(&subset[b])))?;
+        let misses: Vec<f64> = subset
+            .iter()
+            .map(|p| model.mean(p.dir).map(|map| miss(&map, p)))
+            .collect::<Option<_>>()?;
+        let worst = (0..subset.len()).max_by(|&a, &b| misses[a].total_cmp(&misses[b]))?;
         subset.remove(worst);
         model = model_of(subset.iter(), noise);
     }
@@ -216,20 +250,16 @@ fn core(points: &[(Vec2, Vec2)], noise: f64, min_keep: usize) -> Option<Response
 /// sightings show beyond `noise` (a screw's pitch error, hysteresis: the bench, not a
 /// foreign beam) widens the test: first from the median of the innovations, then from the
 /// residuals of the sightings kept.
-pub fn robust_fit(points: &[(Vec2, Vec2)], noise: f64, min_keep: usize) -> Option<Fit> {
+pub fn robust_fit(points: &[Point], noise: f64, min_keep: usize) -> Option<Fit> {
     let full = model_of(points.iter(), noise);
     let Some(core) = core(points, noise, min_keep) else {
         let widening = residual_widening(&full, points, noise);
-        return Some(Fit {
-            response: full,
-            kept: vec![true; points.len()],
-            widening,
-        });
+        return Some(Fit::new(full, points, vec![true; points.len()], widening));
     };
     let r = Matrix2::identity() * noise * noise;
     let surprises: Vec<f64> = points
         .iter()
-        .map(|(u, z)| core.surprise(*u, *z, r).unwrap_or(0.0))
+        .map(|p| core.surprise(*p, r).unwrap_or(0.0))
         .collect();
     let mut sorted = surprises.clone();
     sorted.sort_by(f64::total_cmp);
@@ -241,13 +271,10 @@ pub fn robust_fit(points: &[(Vec2, Vec2)], noise: f64, min_keep: usize) -> Optio
         let gate = chi2_quantile(GATE_CONFIDENCE) * widening;
         let kept: Vec<bool> = surprises.iter().map(|d2| *d2 <= gate).collect();
         if kept.iter().filter(|k| **k).count() < min_keep {
-            return Some(Fit {
-                widening: widening.max(residual_widening(&full, points, noise)),
-                response: full,
-                kept: vec![true; points.len()],
-            });
+            let widening = widening.max(residual_widening(&full, points, noise));
+            return Some(Fit::new(full, points, vec![true; points.len()], widening));
         }
-        let subset: Vec<(Vec2, Vec2)> = points
+        let subset: Vec<Point> = points
             .iter()
             .zip(&kept)
             .filter(|(_, k)| **k)
@@ -256,11 +283,7 @@ pub fn robust_fit(points: &[(Vec2, Vec2)], noise: f64, min_keep: usize) -> Optio
         let response = model_of(subset.iter(), noise);
         let refreshed = residual_widening(&response, &subset, noise);
         if refreshed <= widening * WIDENING_SETTLED {
-            return Some(Fit {
-                response,
-                kept,
-                widening: widening.max(refreshed),
-            });
+            return Some(Fit::new(response, points, kept, widening.max(refreshed)));
         }
         widening = refreshed;
     }
@@ -274,28 +297,27 @@ pub fn robust_fit(points: &[(Vec2, Vec2)], noise: f64, min_keep: usize) -> Optio
             .map(|(p, _)| p),
         noise,
     );
-    Some(Fit {
-        response,
-        kept,
-        widening,
-    })
+    Some(Fit::new(response, points, kept, widening))
 }
 
 /// How many times the variance `noise`² the sightings `points` scatter by about `model`
 /// fitted to all of them (at least 1): the residual variance over the degrees of freedom the
-/// six numbers leave (the unbiased estimate of least squares), 1 while there are none.
-fn residual_widening(model: &Response, points: &[(Vec2, Vec2)], noise: f64) -> f64 {
-    let freedom = residual_freedom(points.len());
+/// numbers fitted leave (the unbiased estimate of least squares), 1 while there are none.
+pub fn residual_widening(model: &Response, points: &[Point], noise: f64) -> f64 {
+    let freedom = residual_freedom(points);
     if freedom == 0 {
         return 1.0;
     }
     (squares(model, points) / (freedom as f64 * noise * noise)).max(1.0)
 }
 
-/// The degrees of freedom `sightings` (two coordinates each) leave once the model's six
-/// numbers are fitted to them.
-fn residual_freedom(sightings: usize) -> usize {
-    (2 * sightings).saturating_sub(6)
+/// The degrees of freedom `points` (two coordinates each) leave once the model's numbers
+/// are fitted to them: six, and two for each axis whose band they carry a direction for.
+pub fn residual_freedom(points: &[Point]) -> usize {
+    let bands = (0..2)
+        .filter(|&a| points.iter().any(|p| p.dir[a] != 0.0))
+        .count();
+    (2 * points.len()).saturating_sub(6 + 2 * bands)
 }
 
 /// A model fitted to sightings by [`robust_fit`].
@@ -306,38 +328,58 @@ pub struct Fit {
     pub kept: Vec<bool>,
     /// How many times the detector's variance the sightings scatter by (at least 1).
     pub widening: f64,
+    /// The degrees of freedom the sightings kept leave ([`residual_freedom`]).
+    freedom: usize,
 }
 
 impl Fit {
-    /// Whether a new sighting passes the chi-square test with a scatter of `noise` px,
-    /// widened as the kept sightings showed.
-    pub fn believes(&self, command: Vec2, image: Vec2, noise: f64) -> bool {
-        let r = Matrix2::identity() * noise * noise * self.widening;
-        self.response.believes(command, image, r)
+    fn new(response: Response, points: &[Point], kept: Vec<bool>, widening: f64) -> Self {
+        let kept_points: Vec<Point> = points
+            .iter()
+            .zip(&kept)
+            .filter_map(|(p, k)| k.then_some(*p))
+            .collect();
+        Self {
+            response,
+            freedom: residual_freedom(&kept_points),
+            kept,
+            widening,
+        }
     }
 
-    /// The covariance (px²) of where the feature really lands for `command`, the model
+    /// Whether a new sighting passes the chi-square test with a scatter of `noise` px,
+    /// widened as the kept sightings showed.
+    pub fn believes(&self, point: Point, noise: f64) -> bool {
+        let r = Matrix2::identity() * noise * noise * self.widening;
+        self.response.believes(point, r)
+    }
+
+    /// The covariance (px²) of where the feature really lands for `command` (reached with
+    /// the axes last moving in `dir`), the model
     /// fitted with a scatter of `noise` px per sighting: what the model does not know,
     /// scaled by the scatter the sightings showed, and that scatter's share beyond `noise`
     /// (the bench's own: a screw's pitch error, hysteresis, which a new command meets
     /// afresh and no number of sightings averages away).
-    pub fn error_at(&self, command: Vec2, noise: f64) -> Option<Matrix2<f64>> {
-        let (_, cov) = self.response.predict(command)?;
+    pub fn error_at(&self, command: Vec2, dir: Vec2, noise: f64) -> Option<Matrix2<f64>> {
+        let (_, cov) = self.response.predict(command, dir)?;
         let bench = (self.widening - 1.0) * noise * noise;
         Some(cov * self.widening + Matrix2::identity() * bench)
     }
 
     /// Whether the feature lands within `tolerance` px of the model's prediction for
-    /// `command` with probability `confidence` ([`Self::error_at`]; while the sightings
+    /// `command` (reached with the axes last moving in `dir`) with probability `confidence` ([`Self::error_at`]; while the sightings
     /// scatter beyond `noise`, that scatter is an estimate from the residuals' degrees of
     /// freedom, and the test allows for how little a few of them pin it).
-    pub fn sure_at(&self, command: Vec2, noise: f64, tolerance: f64, confidence: f64) -> bool {
-        let freedom = if self.widening > 1.0 {
-            residual_freedom(self.kept.iter().filter(|k| **k).count())
-        } else {
-            0
-        };
-        self.error_at(command, noise)
+    pub fn sure_at(
+        &self,
+        command: Vec2,
+        dir: Vec2,
+        noise: f64,
+        tolerance: f64,
+        confidence: f64,
+    ) -> bool {
+        let freedom = if self.widening > 1.0 { self.freedom } else { 0 };
+        self.error_at(command, dir, noise)
             .is_some_and(|cov| sure_within(cov, tolerance, confidence, freedom))
     }
 }
@@ -357,6 +399,17 @@ mod tests {
         Matrix2::identity() * px * px
     }
 
+    /// A sighting at `image` for `command`, no band modelled.
+    fn at(command: Vec2, image: Vec2) -> Point {
+        Point {
+            command,
+            dir: STILL,
+            image,
+        }
+    }
+
+    const STILL: Vec2 = [0.0; 2];
+
     /// Deterministic scatter in [-1, 1].
     fn wobble(i: usize) -> f64 {
         ((i as f64 * 12.9898).sin() * 43_758.547).fract()
@@ -368,11 +421,11 @@ mod tests {
         let commands = [[0.0, 0.0], [400.0, 0.0], [0.0, 400.0], [400.0, 400.0]];
         let mut spreads = Vec::new();
         for u in commands {
-            model.add(u, truth().predict(u), noise(1.0));
-            let (_, cov) = model.predict([200.0, 200.0]).unwrap();
+            model.add(at(u, truth().predict(u)), noise(1.0));
+            let (_, cov) = model.predict([200.0, 200.0], STILL).unwrap();
             spreads.push(cov.trace());
         }
-        let fitted = model.mean().unwrap();
+        let fitted = model.mean(STILL).unwrap();
         for (row, want) in fitted.gain.iter().zip(truth().gain) {
             for (g, w) in row.iter().zip(want) {
                 assert!((g - w).abs() < 1e-6, "{fitted:?}");
@@ -380,7 +433,7 @@ mod tests {
         }
         assert!((fitted.offset[0] - 320.0).abs() < 1e-3, "{fitted:?}");
         assert!(spreads.windows(2).all(|w| w[1] < w[0]), "{spreads:?}");
-        let (_, cov) = model.predict([200.0, 200.0]).unwrap();
+        let (_, cov) = model.predict([200.0, 200.0], STILL).unwrap();
         assert!(sure_within(cov, 3.0, 0.95, 0), "{cov}");
         assert!(!sure_within(cov, 0.1, 0.95, 0), "{cov}");
     }
@@ -399,14 +452,14 @@ mod tests {
         .enumerate()
         {
             let p = truth().predict(u);
-            model.add(u, [p[0] + wobble(i), p[1] - wobble(i + 7)], noise(1.0));
+            model.add(at(u, [p[0] + wobble(i), p[1] - wobble(i + 7)]), noise(1.0));
         }
         let u = [100.0, 200.0];
         let p = truth().predict(u);
-        assert!(model.believes(u, [p[0] + 1.5, p[1] - 1.0], noise(1.0)));
-        assert!(!model.believes(u, [p[0] + 25.0, p[1]], noise(1.0)));
+        assert!(model.believes(at(u, [p[0] + 1.5, p[1] - 1.0]), noise(1.0)));
+        assert!(!model.believes(at(u, [p[0] + 25.0, p[1]]), noise(1.0)));
         // The same miss is believed of a sighting the detector itself gives 15 px of scatter.
-        assert!(model.believes(u, [p[0] + 25.0, p[1]], noise(15.0)));
+        assert!(model.believes(at(u, [p[0] + 25.0, p[1]]), noise(15.0)));
     }
 
     #[test]
@@ -415,18 +468,18 @@ mod tests {
         // detector noise: the bench's (a screw's pitch error), every sighting has it.
         let scatter =
             |i: usize| (wobble(i) + wobble(i + 100) + wobble(i + 200)) * 2.0 / 3f64.sqrt();
-        let mut points: Vec<(Vec2, Vec2)> = (0..16)
+        let mut points: Vec<Point> = (0..16)
             .map(|i| {
                 let u = [(i % 4) as f64 * 200.0, (i / 4) as f64 * 200.0];
                 let p = truth().predict(u);
-                (u, [p[0] + scatter(i), p[1] + scatter(i + 50)])
+                at(u, [p[0] + scatter(i), p[1] + scatter(i + 50)])
             })
             .collect();
         let fit = robust_fit(&points, 0.5, 4).unwrap();
         assert!(fit.kept.iter().all(|k| *k), "{:?}", fit.kept);
         assert!(fit.widening > 1.0, "{}", fit.widening);
         // Another beam 60 px off taken for this one.
-        points[5].1[0] += 60.0;
+        points[5].image[0] += 60.0;
         let fit = robust_fit(&points, 0.5, 4).unwrap();
         assert_eq!(
             fit.kept.iter().filter(|k| !**k).count(),
@@ -435,7 +488,7 @@ mod tests {
             fit.kept
         );
         assert!(!fit.kept[5]);
-        let fitted = fit.response.mean().unwrap();
+        let fitted = fit.response.mean(STILL).unwrap();
         assert!((fitted.gain[0][0] - 0.05).abs() < 0.005, "{fitted:?}");
     }
 
@@ -451,12 +504,12 @@ mod tests {
 
     #[test]
     fn the_error_at_a_new_command_carries_the_scatter_the_sightings_showed() {
-        let grid = |scatter: f64| -> Vec<(Vec2, Vec2)> {
+        let grid = |scatter: f64| -> Vec<Point> {
             (0..9)
                 .map(|i| {
                     let u = [(i % 3) as f64 * 300.0, (i / 3) as f64 * 300.0];
                     let p = truth().predict(u);
-                    (
+                    at(
                         u,
                         [p[0] + scatter * wobble(i), p[1] + scatter * wobble(i + 30)],
                     )
@@ -464,7 +517,7 @@ mod tests {
                 .collect()
         };
         let sd = |fit: &Fit| {
-            let cov = fit.error_at([300.0, 300.0], 0.5).unwrap();
+            let cov = fit.error_at([300.0, 300.0], STILL, 0.5).unwrap();
             cov.symmetric_eigenvalues().max().sqrt()
         };
         // Sightings as exact as the detector says: the error is what the fit does not know,
@@ -478,7 +531,7 @@ mod tests {
         assert!(scattered.widening > 10.0, "{}", scattered.widening);
         assert!(sd(&scattered) > 1.5, "{}", sd(&scattered));
         // With no more sightings than numbers to fit, nothing shows a scatter.
-        let three: Vec<(Vec2, Vec2)> = grid(5.0).into_iter().take(3).collect();
+        let three: Vec<Point> = grid(5.0).into_iter().take(3).collect();
         assert_eq!(robust_fit(&three, 0.5, 4).unwrap().widening, 1.0);
     }
 
@@ -489,15 +542,18 @@ mod tests {
             gain: truth().gain,
         };
         let mut model = Response::with_prior([0.0, 0.0], nominal, PRIOR_OFFSET_PX, 0.002);
-        model.add([0.0, 0.0], truth().predict([0.0, 0.0]), noise(1.0));
-        let (at, cov) = model.predict([500.0, -300.0]).unwrap();
+        model.add(at([0.0, 0.0], truth().predict([0.0, 0.0])), noise(1.0));
+        let (mean, cov) = model.predict([500.0, -300.0], STILL).unwrap();
         let want = truth().predict([500.0, -300.0]);
-        assert!((at[0] - want[0]).hypot(at[1] - want[1]) < 0.5, "{at:?}");
+        assert!(
+            (mean[0] - want[0]).hypot(mean[1] - want[1]) < 0.5,
+            "{mean:?}"
+        );
         assert!(cov.trace().sqrt() < 3.0, "{cov}");
         // With nothing known of the response, one sighting says nothing of another command.
         let mut broad = Response::broad([0.0, 0.0]);
-        broad.add([0.0, 0.0], truth().predict([0.0, 0.0]), noise(1.0));
-        let (_, cov) = broad.predict([500.0, -300.0]).unwrap();
+        broad.add(at([0.0, 0.0], truth().predict([0.0, 0.0])), noise(1.0));
+        let (_, cov) = broad.predict([500.0, -300.0], STILL).unwrap();
         assert!(cov.trace().sqrt() > 1000.0, "{cov}");
     }
 }

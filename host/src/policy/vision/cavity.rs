@@ -313,7 +313,7 @@ impl CavityAgent {
             self.scales.learn_size(SECONDARY, a.change.size());
             self.size_probe(a.change.size(), v.beam.centre, a.beam.centre);
         }
-        self.tracker.estimate_lost_motion();
+        self.tracker.estimate_band();
         let Step::Check(predicted) = self.last else {
             return false;
         };

@@ -274,7 +274,7 @@ impl MichelsonAgent {
             let u = self.mirror(j);
             self.trackers[j].add_clean(u, c);
         }
-        self.trackers[k].estimate_lost_motion();
+        self.trackers[k].estimate_band();
         matches!(seen_to, Some(Sighting::Clean(_) | Sighting::Fitted(_)))
     }
 
@@ -496,12 +496,10 @@ impl MichelsonAgent {
             if let Some(c) = seen {
                 let u = self.mirror(k);
                 self.trackers[k].add_clean(u, *c);
-                let lost = self.trackers[k].lost();
-                self.trackers[k].estimate_lost_motion();
-                relearned |= self.trackers[k].lost() != lost;
+                relearned |= self.trackers[k].estimate_band();
             }
         }
-        // A new estimate of the lost motion changes every prediction: it is checked first.
+        // A dead band newly found changes every prediction: it is checked first.
         believed && !relearned && self.sure_at_centre(view.centre(), &before_refit)
     }
 

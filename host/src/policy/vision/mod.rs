@@ -9,7 +9,6 @@ mod bench;
 mod cavity;
 mod michelson;
 mod model;
-mod play;
 mod relay;
 mod see;
 mod servo;

@@ -1,16 +1,15 @@
 //! The agent's model of one two-axis actuator: observations of where a feature was seen for
-//! which motor command, an affine motor-to-image map fitted to them by least squares, the
-//! motion each axis loses when it reverses (a dead band the controller does not
-//! compensate), and the choice of the next probe (an axis not yet moved, or an expanding
-//! search when the feature has not been seen).
+//! which motor command, the bench model fitted to them (`bench`: an affine motor-to-image
+//! map, and on an axis whose sightings show one, the shift a dead band the controller does
+//! not compensate puts on the feature after a move one way rather than the other), and the
+//! choice of the next probe (an axis not yet moved, or an expanding search when the feature
+//! has not been seen).
 
 use std::ops::RangeInclusive;
 
-use super::bench;
-use super::play::{self, Play};
+use super::bench::{self, Point};
 use super::tuning::{
-    LOST_MOTION_DELTA, LOST_MOTION_GAIN, LOST_MOTION_MIN_SIGHTINGS, LOST_MOTION_PER_SIDE,
-    LOST_MOTION_SIGNIFICANCE, LOST_MOTION_TIE_NOISES, LOST_MOTION_WORTH_NOISES, ROBUST_MIN_POINTS,
+    BAND_CONFIDENCE, BAND_MIN_SIGHTINGS, BAND_PER_SIDE, BAND_WORTH_NOISES, ROBUST_MIN_POINTS,
     ROUGH_BALANCE, ROUGH_REACH, SAME_COMMAND_SHARE, SAME_STEP, SEARCH_REFINEMENTS, SEARCH_RINGS,
 };
 
@@ -74,31 +73,32 @@ impl Affine {
 
 /// Whether commands span both axes by at least `min_spread` steps (RMS about their mean
 /// along the weaker direction): only then do sightings pin a two-axis response.
-fn spans_both_axes(points: &[(Vec2, Vec2)], min_spread: f64) -> bool {
+fn spans_both_axes(points: &[Point], min_spread: f64) -> bool {
     if points.len() < 3 {
         return false;
     }
     let n = points.len() as f64;
-    let mean = |f: &dyn Fn(&(Vec2, Vec2)) -> f64| points.iter().map(f).sum::<f64>() / n;
-    let (mu, mv) = (mean(&|p| p.0[0]), mean(&|p| p.0[1]));
-    let suu = mean(&|p| (p.0[0] - mu).powi(2));
-    let svv = mean(&|p| (p.0[1] - mv).powi(2));
-    let suv = mean(&|p| (p.0[0] - mu) * (p.0[1] - mv));
+    let mean = |f: &dyn Fn(&Point) -> f64| points.iter().map(f).sum::<f64>() / n;
+    let (mu, mv) = (mean(&|p| p.command[0]), mean(&|p| p.command[1]));
+    let suu = mean(&|p| (p.command[0] - mu).powi(2));
+    let svv = mean(&|p| (p.command[1] - mv).powi(2));
+    let suv = mean(&|p| (p.command[0] - mu) * (p.command[1] - mv));
     let det = suu * svv - suv * suv;
     let trace = suu + svv;
     let weakest = trace / 2.0 - ((trace / 2.0).powi(2) - det).max(0.0).sqrt();
     weakest >= min_spread * min_spread
 }
 
-/// The bench model of sightings `points` with a scatter of `noise` px, none set aside,
-/// once their commands span both axes by `min_spread` steps.
-fn fit(points: &[(Vec2, Vec2)], noise: f64, min_spread: f64) -> Option<Affine> {
+/// The map, for commands reached with the axes last moving in `dir`, of the bench model
+/// of sightings `points` with a scatter of `noise` px, none set aside, once their commands
+/// span both axes by `min_spread` steps.
+fn fit(points: &[Point], dir: Vec2, noise: f64, min_spread: f64) -> Option<Affine> {
     if !spans_both_axes(points, min_spread) {
         return None;
     }
     bench::robust_fit(points, noise, points.len())?
         .response
-        .mean()
+        .mean(dir)
 }
 
 /// The larger of a response's two columns' lengths: px per step of the stronger axis.
@@ -200,16 +200,13 @@ impl Sighting {
     }
 }
 
-/// One sighting of a feature: the command, where it showed, the direction each axis had
-/// last moved in (+1, -1; 0 before its first move) and where in the tracker's command path
-/// it was made.
+/// One sighting of a feature: the command, where it showed and the direction each axis
+/// had last moved in (+1, -1; 0 before its first move).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Sight {
     pub command: Vec2,
     pub image: Vec2,
     pub dir: Vec2,
-    /// Index of the command in [`Tracker::path`] the mount had last been sent to.
-    at: usize,
     /// When it was made, counting every sighting of the tracker.
     pub order: usize,
     /// Extrapolated from a spot the border cut ([`Sighting::Fitted`]).
@@ -235,13 +232,11 @@ pub struct Tracker {
     pub dir: Vec2,
     /// The directions before the last move.
     previous_dir: Vec2,
-    /// Every command the mount was sent to, in order (the start first).
-    path: Vec<Vec2>,
-    /// The index in `path` of the command before the last move.
-    before_move: usize,
-    /// The play of the mount (a dead band the controller does not compensate, and where in
-    /// it the mount started), as estimated from the sightings.
-    play: Play,
+    /// The command the mount was last sent to.
+    current: Option<Vec2>,
+    /// The axes whose sightings showed a dead band the controller does not compensate
+    /// ([`Self::estimate_band`]): only on these does the model fit one.
+    band: [bool; 2],
     /// The scatter of one measured position, px (set by the agent from what it measured).
     pub noise: f64,
     /// Sightings made so far (clean and partial), for their order.
@@ -265,9 +260,8 @@ impl Tracker {
             min_spread: probe[0].min(probe[1]) / 4.0,
             dir: [0.0; 2],
             previous_dir: [0.0; 2],
-            path: Vec::new(),
-            before_move: 0,
-            play: Play::default(),
+            current: None,
+            band: [false; 2],
             noise: 1.0,
             made: 0,
             lost_at: None,
@@ -275,8 +269,7 @@ impl Tracker {
         }
     }
 
-    /// Books a commanded move from `from` to `to`: the axes that moved set their direction,
-    /// and the command joins the path.
+    /// Books a commanded move from `from` to `to`: the axes that moved set their direction.
     pub fn moved(&mut self, from: Vec2, to: Vec2) {
         self.previous_dir = self.dir;
         for axis in 0..2 {
@@ -285,39 +278,77 @@ impl Tracker {
                 self.dir[axis] = step.signum();
             }
         }
-        if self
-            .path
-            .last()
-            .is_none_or(|&last| distance(last, from) >= SAME_STEP)
-        {
-            self.path.push(from);
-        }
-        self.before_move = self.path.len() - 1;
-        if distance(from, to) >= SAME_STEP {
-            self.path.push(to);
-        }
+        self.current = Some(to);
     }
 
-    /// The index in the path of the command the mount was last sent to.
-    fn here(&self) -> usize {
-        self.path.len().saturating_sub(1)
+    /// `dir` on the axes whose band the model fits, 0 on the others.
+    fn banded(&self, dir: Vec2) -> Vec2 {
+        [0, 1].map(|a| if self.band[a] { dir[a] } else { 0.0 })
+    }
+
+    /// The direction each banded axis moves in last when the mount is sent from `from` to
+    /// `command` (an axis that stays keeps its last direction).
+    fn dir_from(&self, from: Vec2, command: Vec2) -> Vec2 {
+        self.banded([0, 1].map(|a| {
+            let step = command[a] - from[a];
+            if step.abs() >= SAME_STEP {
+                step.signum()
+            } else {
+                self.dir[a]
+            }
+        }))
+    }
+
+    /// [`Self::dir_from`] the command the mount was last sent to.
+    fn dir_towards(&self, command: Vec2) -> Vec2 {
+        self.dir_from(self.current.unwrap_or(command), command)
+    }
+
+    /// Half the dead band of each axis, steps: how far the load trails the motor after a
+    /// move (0 on an axis without one).
+    fn half_band(&self) -> Vec2 {
+        let Some((fit, _)) = self.response().filter(|_| self.band != [false; 2]) else {
+            return [0.0; 2];
+        };
+        let (Some(map), Some(shift)) = (fit.response.mean([0.0; 2]), fit.response.band()) else {
+            return [0.0; 2];
+        };
+        let unit = Affine {
+            offset: [0.0; 2],
+            gain: map.gain,
+        };
+        // The shift after a move the positive way is the gain times minus half the band.
+        [0, 1].map(|a| {
+            unit.solve([shift[0][a], shift[1][a]])
+                .map_or(0.0, |steps| (-steps[a]).max(0.0))
+        })
     }
 
     /// Motion lost when an axis reverses, steps, as estimated from the sightings.
     pub fn lost(&self) -> Vec2 {
-        self.play.band
+        self.half_band().map(|h| 2.0 * h)
     }
 
     /// The command that puts the load at `target` from the command `current` (the one last
-    /// booked by [`Self::moved`]): an axis whose load must move goes past the target by half
-    /// the lost motion on the side it approaches from; one already there stays.
+    /// booked by [`Self::moved`]): an axis whose load must move (by more than
+    /// [`SAME_STEP`]) goes past the target by half the lost motion on the side it
+    /// approaches from; one already there stays.
     pub fn command_to_load(&self, target: Vec2, current: Vec2) -> Vec2 {
         let load = self.load().unwrap_or(current);
-        play::command_for(target, load, self.play.band, current, SAME_STEP)
+        let half = self.half_band();
+        [0, 1].map(|a| {
+            if target[a] > load[a] + SAME_STEP {
+                target[a] + half[a]
+            } else if target[a] < load[a] - SAME_STEP {
+                target[a] - half[a]
+            } else {
+                current[a]
+            }
+        })
     }
 
     /// Forgets every sighting (the feature is seen from elsewhere now, through another
-    /// map), keeping the command path and the play estimated on it.
+    /// map), keeping which axes show a dead band.
     pub fn forget_sightings(&mut self) {
         self.clean.clear();
         self.partial.clear();
@@ -325,40 +356,41 @@ impl Tracker {
         self.lost_at = None;
     }
 
-    /// Where the load sat at each command of the path, for the mount's `play`.
-    fn loads(&self, play: Play) -> Vec<Vec2> {
-        play::trajectory(&self.path, play)
+    /// Where the load sits now: the motor's command less half the band the way it last
+    /// moved; `None` before the first move.
+    pub fn load(&self) -> Option<Vec2> {
+        let current = self.current?;
+        let half = self.half_band();
+        Some([0, 1].map(|a| current[a] - half[a] * self.dir[a]))
     }
 
-    /// Where the mount really sat for sighting `s`, given the `loads` along the path: its
-    /// command, less how far the motor then led the load.
-    fn effective(&self, s: &Sight, loads: &[Vec2]) -> Vec2 {
-        match (self.path.get(s.at), loads.get(s.at)) {
-            (Some(motor), Some(load)) => [0, 1].map(|a| s.command[a] - (motor[a] - load[a])),
-            _ => s.command,
+    /// Sighting `s` as the model takes it: its direction on the banded axes.
+    fn point(&self, s: &Sight) -> Point {
+        Point {
+            command: s.command,
+            dir: self.banded(s.dir),
+            image: s.image,
         }
     }
 
-    /// Where the load sits now, by the play estimated; `None` before the first move.
-    pub fn load(&self) -> Option<Vec2> {
-        self.loads(self.play).last().copied()
-    }
-
-    /// The clean sightings a map is fitted to, on effective commands: the whole ones alone
-    /// once they span both axes (a fitted centre of a cut spot is less exact), else all.
-    fn points(&self) -> Vec<(Vec2, Vec2)> {
-        self.points_for(self.play)
-    }
-
-    /// [`Self::points`] with the mount's play taken as `play`.
-    fn points_for(&self, play: Play) -> Vec<(Vec2, Vec2)> {
-        let loads = self.loads(play);
-        let point = |s: &Sight| (self.effective(s, &loads), s.image);
-        let whole: Vec<(Vec2, Vec2)> = self.clean.iter().filter(|s| !s.fitted).map(point).collect();
-        if whole.len() < self.clean.len() && spans_both_axes(&whole, self.min_spread) {
+    /// The clean sightings a map is fitted to: the whole ones alone once they span both
+    /// axes (a fitted centre of a cut spot is less exact), else all; on a banded axis, only
+    /// those made after it first moved (before, where in the band the load sat is unknown).
+    fn points(&self) -> Vec<Point> {
+        let known: Vec<&Sight> = self
+            .clean
+            .iter()
+            .filter(|s| (0..2).all(|a| !self.band[a] || s.dir[a] != 0.0))
+            .collect();
+        let whole: Vec<Point> = known
+            .iter()
+            .filter(|s| !s.fitted)
+            .map(|s| self.point(s))
+            .collect();
+        if whole.len() < known.len() && spans_both_axes(&whole, self.min_spread) {
             return whole;
         }
-        self.clean.iter().map(point).collect()
+        known.iter().map(|s| self.point(s)).collect()
     }
 
     /// The fitted model (on effective commands), once the clean sightings span both axes.
@@ -366,19 +398,13 @@ impl Tracker {
     /// dropped one by one, worst first, while more than a minimal fit remains: an early
     /// sighting of a beam cut by the border must not bend the map for ever.
     pub fn model(&self) -> Option<Affine> {
-        self.robust_fit().map(|(model, _)| model)
+        let (fit, _) = self.response()?;
+        fit.response.mean(self.banded(self.dir))
     }
 
-    /// The robust fit behind [`Self::model`] and the points it kept: the bench model of
-    /// the clean sightings less those its chi-square test sets aside ([`bench::robust_fit`]).
-    fn robust_fit(&self) -> Option<(Affine, Vec<(Vec2, Vec2)>)> {
-        let (fit, points) = self.response()?;
-        Some((fit.response.mean()?, points))
-    }
-
-    /// The bench model behind [`Self::robust_fit`], with its uncertainty, and the points
-    /// it kept.
-    fn response(&self) -> Option<(bench::Fit, Vec<(Vec2, Vec2)>)> {
+    /// The bench model of the clean sightings less those its chi-square test sets aside
+    /// ([`bench::robust_fit`]), with its uncertainty, and the points it kept.
+    fn response(&self) -> Option<(bench::Fit, Vec<Point>)> {
         let points = self.points();
         if !spans_both_axes(&points, self.min_spread) {
             return None;
@@ -397,193 +423,137 @@ impl Tracker {
     /// the model does not know and the bench's own scatter ([`bench::Fit::sure_at`]).
     pub fn sure_at(&self, command: Vec2, tolerance: f64, confidence: f64) -> bool {
         self.response().is_some_and(|(fit, _)| {
-            fit.sure_at(self.settled(command), self.noise, tolerance, confidence)
+            let dir = self.dir_towards(command);
+            fit.sure_at(command, dir, self.noise, tolerance, confidence)
         })
     }
 
     /// Whether a sighting at `image` for `command` (the mount sent there from where it
     /// is now) passes the model's chi-square test: `true` while there is no model.
     pub fn believes(&self, command: Vec2, image: Vec2) -> bool {
-        self.response()
-            .is_none_or(|(fit, _)| fit.believes(self.settled(command), image, self.noise))
-    }
-
-    /// Where the load settles once the mount is sent from where it is now to `command`.
-    fn settled(&self, command: Vec2) -> Vec2 {
-        match self.load() {
-            Some(now) => play::settle(now, command, self.play.band),
-            None => command,
-        }
-    }
-
-    /// The fit to every clean sighting (none set aside): what the lost motion is
-    /// estimated against, since a reversal's lost motion shows as a misfit.
-    fn plain_model(&self) -> Option<Affine> {
-        fit(&self.points(), self.noise, self.min_spread)
+        self.response().is_none_or(|(fit, _)| {
+            let dir = self.dir_towards(command);
+            fit.believes(
+                Point {
+                    command,
+                    dir,
+                    image,
+                },
+                self.noise,
+            )
+        })
     }
 
     /// The fitted model anchored at the latest clean sighting the fit did not reject: one
     /// it contradicts (another beam taken for this one) would carry its error into every
     /// prediction.
     pub fn local_model(&self) -> Option<Affine> {
-        let (model, kept) = self.robust_fit()?;
-        let loads = self.loads(self.play);
+        self.local_model_for(self.banded(self.dir))
+    }
+
+    /// [`Self::local_model`] for commands reached with the axes last moving in `dir`.
+    fn local_model_for(&self, dir: Vec2) -> Option<Affine> {
+        let (fit, kept) = self.response()?;
+        let model = fit.response.mean(dir)?;
         let anchor = self
             .clean
             .iter()
             .rev()
-            .map(|s| (self.effective(s, &loads), s.image))
+            .map(|s| self.point(s))
             .find(|point| kept.contains(point));
-        Some(match anchor {
-            Some((command, image)) => model.anchored(command, image),
-            None => model,
+        let Some(anchor) = anchor else {
+            return Some(model);
+        };
+        let own = fit.response.mean(anchor.dir)?;
+        let anchored = own.anchored(anchor.command, anchor.image);
+        Some(Affine {
+            offset: [0, 1].map(|r| anchored.offset[r] + (model.offset[r] - own.offset[r])),
+            gain: model.gain,
         })
     }
 
     /// Where the feature shows once the mount is sent from where it is now to `command`.
     pub fn predict(&self, command: Vec2) -> Option<Vec2> {
-        Some(self.local_model()?.predict(self.settled(command)))
-    }
-
-    /// The command that puts the feature at `point` when the mount is sent there from
-    /// `from` (where it is now), within range: an axis whose load must move goes past the
-    /// target by half the lost motion on the side it approaches from; one whose load is
-    /// already there stays.
-    pub fn command_for(&self, point: Vec2, from: Vec2) -> Option<Vec2> {
-        let target = self.local_model()?.solve(point)?;
-        let load = self.load().unwrap_or(from);
-        let command = play::command_for(target, load, self.play.band, from, SAME_STEP);
-        Some(self.clamp(command))
-    }
-
-    /// Re-estimates the lost motion of each axis from clean sightings made after moves in
-    /// both directions: the dead band whose play along the command path best fits the
-    /// sightings to one map, kept only when it explains a real share of the misfit and
-    /// differs from the current estimate by more than its own uncertainty.
-    pub fn estimate_lost_motion(&mut self) {
-        if self.clean.len() < LOST_MOTION_MIN_SIGHTINGS {
-            return;
-        }
-        let reversed = |axis: usize| {
-            let count = |sign: f64| {
-                self.clean
-                    .iter()
-                    .filter(|s| s.dir[axis] * sign > 0.0)
-                    .count()
-            };
-            count(1.0) >= LOST_MOTION_PER_SIDE && count(-1.0) >= LOST_MOTION_PER_SIDE
-        };
-        let axes: Vec<usize> = (0..2).filter(|&a| reversed(a)).collect();
-        if axes.is_empty() {
-            return;
-        }
-        // Sightings made before an axis first moved say nothing of where in the dead band
-        // the mount was.
-        let mut trial = self.clone();
-        trial
-            .clean
-            .retain(|s| axes.iter().all(|&a| s.dir[a] != 0.0));
-        if trial.clean.len() < LOST_MOTION_MIN_SIGHTINGS {
-            return;
-        }
-        // The play every sighting suggests; then, at that play, without the sightings the
-        // others contradict (two beams seen merged), which would pull the band to explain
-        // them. Trimmed at the current play instead, the trim would drop the very
-        // sightings the band displaced.
-        let widest = play::widest_band(&self.path);
-        let tolerance = LOST_MOTION_TIE_NOISES * self.noise * self.noise;
-        trial.play = play::best_play(self.play, &axes, widest, tolerance, |p| trial.misfit(p));
-        let trimmed = trial.without_contradicted();
-        if trimmed.clean.len() >= LOST_MOTION_MIN_SIGHTINGS {
-            trial = trimmed;
-        }
-        let start = trial.misfit(self.play);
-        if !start.is_finite() {
-            return;
-        }
-        let found = play::best_play(trial.play, &axes, widest, tolerance, |p| trial.misfit(p));
-        let end = trial.misfit(found);
-        trial.play = found;
-        let Some(error) = trial.lost_motion_error(&axes) else {
-            return;
-        };
-        let significant = axes.iter().all(|&a| {
-            (found.band[a] - self.play.band[a]).abs() > LOST_MOTION_SIGNIFICANCE * error[a]
-        });
-        // A first band must explain a real share of each sighting's miss: a screw's pitch
-        // error or hysteresis leaves a scatter of a few noise levels that a band can fit
-        // in part, and commands compensated for a band that is not there miss by half of it.
-        let explained = ((start - end).max(0.0) / trial.clean.len() as f64).sqrt();
-        let worth = self.play.band != [0.0; 2] || explained > LOST_MOTION_WORTH_NOISES * self.noise;
-        if end < (1.0 - LOST_MOTION_GAIN) * start && significant && worth {
-            self.play = found;
-        }
-    }
-
-    /// This tracker without the clean sightings its robust fit drops as contradicted.
-    fn without_contradicted(&self) -> Self {
-        let mut kept = self.clone();
-        if let Some((_, points)) = self.robust_fit() {
-            let loads = self.loads(self.play);
-            kept.clean
-                .retain(|s| points.contains(&(self.effective(s, &loads), s.image)));
-        }
-        kept
-    }
-
-    /// The sum of squared misses of the least-squares map through every clean sighting,
-    /// with the mount's play taken as `play`.
-    fn residual_for(&self, play: Play) -> Option<f64> {
-        let points = self.points_for(play);
-        let model = fit(&points, self.noise, self.min_spread)?;
         Some(
-            points
-                .iter()
-                .map(|(u, p)| distance(model.predict(*u), *p).powi(2))
-                .sum(),
+            self.local_model_for(self.dir_towards(command))?
+                .predict(command),
         )
     }
 
-    /// How badly `play` explains the clean sightings: [`Self::residual_for`], infinite
-    /// while they fit no map.
-    fn misfit(&self, play: Play) -> f64 {
-        self.residual_for(play).unwrap_or(f64::INFINITY)
+    /// The command that puts the feature at `point` when the mount is sent there from
+    /// `from` (where it is now), within range: on a banded axis, the map of the direction
+    /// the move takes (which puts the command past the target by half the band on the side
+    /// it approaches from); an axis already there stays.
+    pub fn command_for(&self, point: Vec2, from: Vec2) -> Option<Vec2> {
+        let mut dir = self.dir_from(from, from);
+        let mut target = self.local_model_for(dir)?.solve(point)?;
+        for _ in 0..2 {
+            let next = self.dir_from(from, target);
+            if next == dir {
+                break;
+            }
+            dir = next;
+            target = self.local_model_for(dir)?.solve(point)?;
+        }
+        let command = [0, 1].map(|a| {
+            if (target[a] - from[a]).abs() < SAME_STEP {
+                from[a]
+            } else {
+                target[a]
+            }
+        });
+        Some(self.clamp(command))
     }
 
-    /// The standard error of the lost motion on `axes`, steps: the fit's scatter over how
-    /// strongly a change of each axis's band moves the sightings' predicted positions.
-    fn lost_motion_error(&self, axes: &[usize]) -> Option<Vec2> {
-        let model = self.plain_model()?;
-        // A fit closer than the position noise is a fit to too few sightings, not a measure
-        // of the band.
-        let variance = {
-            let dof = (2 * self.clean.len()).saturating_sub(6 + axes.len()).max(1);
-            (self.residual_for(self.play)? / dof as f64).max(self.noise * self.noise)
-        };
-        let mut error = [0.0; 2];
-        for &a in axes {
-            let shifted = |by: f64| {
-                let mut play = self.play;
-                play.band[a] = (play.band[a] + by).max(0.0);
-                (self.loads(play), play.band[a])
-            };
-            let ((above, high), (below, low)) =
-                (shifted(LOST_MOTION_DELTA), shifted(-LOST_MOTION_DELTA));
-            let width = (high - low).max(1e-12);
-            let sensitivity: f64 = self
-                .clean
+    /// Looks for a dead band on each axis not yet known to have one, among the axes with
+    /// enough clean sightings after moves either way: the fit with every such axis's band
+    /// against the same without this axis's. It is taken when it explains the misses beyond
+    /// chance (an F test at [`BAND_CONFIDENCE`], the scatter from the residuals and at
+    /// least the position noise) and by a real share of each sighting's miss (a screw's
+    /// pitch error or hysteresis leaves a scatter of a few noise levels that a band can fit
+    /// in part). True when a band was taken: every prediction changes.
+    pub fn estimate_band(&mut self) -> bool {
+        let side = |axis: usize, sign: f64| {
+            self.clean
                 .iter()
-                .map(|s| {
-                    let moved =
-                        (self.effective(s, &above)[a] - self.effective(s, &below)[a]) / width;
-                    (0..2)
-                        .map(|row| (model.gain[row][a] * moved).powi(2))
-                        .sum::<f64>()
-                })
-                .sum();
-            error[a] = (variance / sensitivity.max(1e-12)).sqrt();
+                .filter(|s| s.dir[axis] * sign > 0.0)
+                .count()
+        };
+        let eligible = [0, 1].map(|a| {
+            side(a, 1.0) + side(a, -1.0) >= BAND_MIN_SIGHTINGS
+                && side(a, 1.0).min(side(a, -1.0)) >= BAND_PER_SIDE
+        });
+        let mut trial = self.clone();
+        trial.band = [0, 1].map(|a| self.band[a] || eligible[a]);
+        let with = trial.points();
+        let freedom = bench::residual_freedom(&with);
+        if freedom == 0 || !spans_both_axes(&with, self.min_spread) {
+            return false;
         }
-        Some(error)
+        let squares =
+            |points: &[Point]| bench::squares(&bench::model_of(points.iter(), self.noise), points);
+        let after = squares(&with);
+        let scatter = (after / freedom as f64).max(self.noise * self.noise);
+        let mut found = false;
+        let unbanded = [0, 1].map(|a| eligible[a] && !self.band[a]);
+        for axis in (0..2).filter(|&a| unbanded[a]) {
+            let without: Vec<Point> = with
+                .iter()
+                .map(|p| {
+                    let mut p = *p;
+                    p.dir[axis] = 0.0;
+                    p
+                })
+                .collect();
+            let explained = (squares(&without) - after).max(0.0);
+            let significant = explained / scatter > bench::quantile(BAND_CONFIDENCE, freedom);
+            let worth = (explained / with.len() as f64).sqrt() > BAND_WORTH_NOISES * self.noise;
+            if significant && worth {
+                self.band[axis] = true;
+                found = true;
+            }
+        }
+        found
     }
 
     /// What the tracker believes, for the transcript: how many sightings of each kind, the
@@ -597,7 +567,7 @@ impl Tracker {
                 "missing": self.missing.len(),
             },
             "response_px_per_step": model.map(|m| m.gain),
-            "lost_motion_steps": self.play.band,
+            "lost_motion_steps": self.lost(),
             "predicted_px": self.predict(command),
         })
     }
@@ -605,11 +575,10 @@ impl Tracker {
     /// Records a clean sighting at `command`, replacing an earlier one at the same command
     /// and direction.
     pub fn add_clean(&mut self, command: Vec2, image: Vec2) {
-        self.add_clean_with(command, image, (self.dir, self.here()), false);
+        self.add_clean_with(command, image, self.dir, false);
     }
 
-    fn add_clean_with(&mut self, command: Vec2, image: Vec2, when: (Vec2, usize), fitted: bool) {
-        let (dir, at) = when;
+    fn add_clean_with(&mut self, command: Vec2, image: Vec2, dir: Vec2, fitted: bool) {
         self.clean
             .retain(|s| distance(s.command, command) >= SAME_STEP || s.dir != dir);
         let order = self.next_order();
@@ -617,20 +586,17 @@ impl Tracker {
             command,
             image,
             dir,
-            at,
             order,
             fitted,
         });
     }
 
-    fn add_partial_with(&mut self, command: Vec2, image: Vec2, when: (Vec2, usize)) {
-        let (dir, at) = when;
+    fn add_partial_with(&mut self, command: Vec2, image: Vec2, dir: Vec2) {
         let order = self.next_order();
         self.partial.push(Sight {
             command,
             image,
             dir,
-            at,
             order,
             fitted: false,
         });
@@ -644,24 +610,23 @@ impl Tracker {
     /// Files what was seen at the current `command` (or that nothing was).
     pub fn file(&mut self, command: Vec2, seen: Option<Sighting>) {
         match seen {
-            Some(seen) => self.file_with(command, seen, (self.dir, self.here())),
+            Some(seen) => self.file_with(command, seen, self.dir),
             None => self.add_missing(command),
         }
     }
 
-    /// Files `seen` at `command`, made `when` the axes had last moved in the given
-    /// directions and the mount was at the given index of the path.
-    fn file_with(&mut self, command: Vec2, seen: Sighting, when: (Vec2, usize)) {
+    /// Files `seen` at `command`, made when the axes had last moved in directions `dir`.
+    fn file_with(&mut self, command: Vec2, seen: Sighting, dir: Vec2) {
         match seen {
-            Sighting::Clean(c) => self.add_clean_with(command, c, when, false),
-            Sighting::Fitted(c) => self.add_clean_with(command, c, when, true),
-            Sighting::Partial(c) => self.add_partial_with(command, c, when),
+            Sighting::Clean(c) => self.add_clean_with(command, c, dir, false),
+            Sighting::Fitted(c) => self.add_clean_with(command, c, dir, true),
+            Sighting::Partial(c) => self.add_partial_with(command, c, dir),
         }
     }
 
     /// Files what was seen at `command` before the last move, as the mount was then.
     pub fn file_before_move(&mut self, command: Vec2, seen: Sighting) {
-        self.file_with(command, seen, (self.previous_dir, self.before_move));
+        self.file_with(command, seen, self.previous_dir);
     }
 
     pub fn add_missing(&mut self, command: Vec2) {
@@ -811,20 +776,18 @@ impl Tracker {
     /// says one direction hardly moves the feature.
     fn rough_map(&self) -> Option<(Affine, Sight)> {
         let sights = self.steering_sightings();
-        let loads = self.loads(self.play);
-        let points: Vec<(Vec2, Vec2)> = sights
-            .iter()
-            .map(|s| (self.effective(s, &loads), s.image))
-            .collect();
-        let rough = fit(&points, self.noise, self.min_spread)?;
+        let points: Vec<Point> = sights.iter().map(|s| self.point(s)).collect();
+        let latest = *sights.last()?;
+        let rough = fit(
+            &points,
+            self.banded(latest.dir),
+            self.noise,
+            self.min_spread,
+        )?;
         if rough.balance() < ROUGH_BALANCE {
             return None;
         }
-        let latest = *sights.last()?;
-        Some((
-            rough.anchored(self.effective(&latest, &loads), latest.image),
-            latest,
-        ))
+        Some((rough.anchored(latest.command, latest.image), latest))
     }
 
     /// The best map there is: the fitted one, else the rough one of every sighting (`None`
@@ -935,7 +898,7 @@ impl Tracker {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::policy::vision::tuning::DONE_CONFIDENCE;
 
@@ -946,20 +909,24 @@ mod tests {
             offset: [900.0, 500.0],
             gain: [[0.17, 0.012], [-0.01, -0.16]],
         };
-        let points: Vec<(Vec2, Vec2)> =
-            [[0.0, 0.0], [2000.0, 0.0], [0.0, 2000.0], [1500.0, -700.0]]
-                .iter()
-                .map(|&u| (u, truth.predict(u)))
-                .collect();
-        let fit = fit(&points, 1.0, 100.0).unwrap();
+        let still = [0.0; 2];
+        let points: Vec<Point> = [[0.0, 0.0], [2000.0, 0.0], [0.0, 2000.0], [1500.0, -700.0]]
+            .iter()
+            .map(|&command| Point {
+                command,
+                dir: still,
+                image: truth.predict(command),
+            })
+            .collect();
+        let fit = fit(&points, still, 1.0, 100.0).unwrap();
         assert!(
             points
                 .iter()
-                .all(|(u, p)| distance(fit.predict(*u), *p) < 1e-3)
+                .all(|p| distance(fit.predict(p.command), p.image) < 1e-3)
         );
         let u = fit.solve([960.0, 540.0]).unwrap();
         assert!(distance(truth.predict(u), [960.0, 540.0]) < 1e-3);
-        assert!(super::fit(&points[..2], 1.0, 100.0).is_none());
+        assert!(super::fit(&points[..2], still, 1.0, 100.0).is_none());
     }
 
     #[test]
@@ -1002,8 +969,18 @@ mod tests {
         assert!(distance(next, [4000.0, -1500.0]) < 1e-6, "{next:?}");
     }
 
+    /// Where the load of a mount with a dead band of `band` steps per axis sits once the
+    /// motor goes to `command` from a load at `load`: an axis commanded within half the
+    /// band of its load leaves it; beyond, the load trails the command by half the band.
+    pub fn settle(load: Vec2, command: Vec2, band: Vec2) -> Vec2 {
+        [0, 1].map(|axis| {
+            let half = band[axis] / 2.0;
+            load[axis].clamp(command[axis] - half, command[axis] + half)
+        })
+    }
+
     #[test]
-    fn lost_motion_is_measured_from_reversals_and_compensated() {
+    fn a_dead_band_is_found_from_reversals_and_compensated() {
         let truth = Affine {
             offset: [900.0, 500.0],
             gain: [[0.17, 0.012], [-0.01, -0.16]],
@@ -1016,7 +993,7 @@ mod tests {
         let mut mount = ([0.0, 0.0], [0.0, 0.0]);
         let go = |tracker: &mut Tracker, mount: &mut (Vec2, Vec2), next: Vec2| {
             tracker.moved(mount.0, next);
-            *mount = (next, play::settle(mount.1, next, band));
+            *mount = (next, settle(mount.1, next, band));
             tracker.add_clean(next, truth.predict(mount.1));
         };
         for next in [
@@ -1033,24 +1010,19 @@ mod tests {
             go(&mut tracker, &mut mount, next);
         }
         assert_eq!(tracker.lost(), [0.0, 0.0]);
-        tracker.estimate_lost_motion();
+        assert!(tracker.estimate_band());
         assert!(
             (tracker.lost()[0] - 300.0).abs() < 1.0 && (tracker.lost()[1] - 300.0).abs() < 1.0,
             "{:?}",
             tracker.lost()
         );
-        // A target reached by reversing both axes lands where it is meant to.
+        // A target reached by reversing both axes lands where it is meant to, as predicted.
         let seen_now = truth.predict(mount.1);
         let target = [seen_now[0] + 60.0, seen_now[1] + 40.0];
         let command = tracker.command_for(target, mount.0).unwrap();
+        assert!(distance(tracker.predict(command).unwrap(), target) < 0.5);
         go(&mut tracker, &mut mount, command);
         assert!(distance(truth.predict(mount.1), target) < 0.5);
-        // A reversal shorter than the band moves the motor only, and the tracker knows.
-        let short = [mount.0[0] - 100.0, mount.0[1]];
-        let expected = tracker.predict(short).unwrap();
-        go(&mut tracker, &mut mount, short);
-        assert!(distance(truth.predict(mount.1), expected) < 0.5);
-        assert!(distance(expected, target) < 0.5);
         // Without reversals there is nothing to measure.
         let mut forward = Tracker::new([1500.0, 1500.0], [[-8000.0, 8000.0], [-6000.0, 6000.0]]);
         let mut mount = ([0.0, 0.0], [0.0, 0.0]);
@@ -1061,7 +1033,7 @@ mod tests {
                 [400.0 * i as f64, 250.0 * i as f64],
             );
         }
-        forward.estimate_lost_motion();
+        assert!(!forward.estimate_band());
         assert_eq!(forward.lost(), [0.0, 0.0]);
     }
 

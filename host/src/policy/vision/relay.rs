@@ -4,7 +4,7 @@
 //! with a centred compact spot averaged over as many camera placements as the mover's
 //! repeatability calls for, it declares done. Stray light is remembered per station and
 //! taken off as a backdrop (`backdrops`); each mount's lost motion comes from its tracker
-//! (`model`, `play`). docs/vision.md ("Relay") gives the whole procedure.
+//! (`model`). docs/vision.md ("Relay") gives the whole procedure.
 
 use nalgebra::{Matrix2, Vector2};
 use optalign_optics::{Frame, Station};
@@ -424,7 +424,7 @@ impl RelayAgent {
         let mount = &mut self.mounts[self.mirror];
         mount.noise = seen.scatter;
         mount.add_clean(command, seen.at);
-        mount.estimate_lost_motion();
+        mount.estimate_band();
     }
 
     /// What the agent believes after its last decision, for the transcript: the mirror
@@ -847,7 +847,7 @@ fn tilt_by(mirror: usize, step: Vec2) -> RelayAction {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::policy::vision::play::{Play, trajectory};
+    use crate::policy::vision::model::tests::settle;
 
     #[test]
     fn a_mounts_dead_band_is_learned_from_its_sightings_and_compensated() {
@@ -855,17 +855,14 @@ mod tests {
         // fixed response of a far station's size (a tenth of it, at a near station, shows
         // half the band as less than the tracker's threshold of a band worth taking);
         // each command is made by the mount's own model.
-        let truth = Play {
-            band: [300.0, 200.0],
-            start: [0.0; 2],
-        };
+        let band = [300.0, 200.0];
         let response = Affine {
             offset: [320.0, 240.0],
             gain: [[0.3, 0.04], [-0.02, 0.25]],
         };
         let mut mount = new_mount(&RelayLimits::default());
         mount.noise = MIN_NOISE_PX;
-        let mut path = vec![[0.0, 0.0]];
+        let (mut command, mut load) = ([0.0, 0.0], [0.0, 0.0]);
         let mut misses = Vec::new();
         let targets = [
             [2000.0, 0.0],
@@ -884,14 +881,12 @@ mod tests {
             [1700.0, 1300.0],
         ];
         for target in targets {
-            let command = path[path.len() - 1];
             let next = mount.command_to_load(target, command);
             mount.moved(command, next);
-            path.push(next);
-            let load = trajectory(&path, truth)[path.len() - 1];
+            (command, load) = (next, settle(load, next, band));
             misses.push((load[0] - target[0]).abs().max((load[1] - target[1]).abs()));
             mount.add_clean(next, response.predict(load));
-            mount.estimate_lost_motion();
+            mount.estimate_band();
         }
         let lost = mount.lost();
         assert!((lost[0] - 300.0).abs() < 30.0, "{lost:?}");

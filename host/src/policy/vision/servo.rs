@@ -8,7 +8,7 @@
 
 use nalgebra::Matrix2;
 
-use super::bench::Response;
+use super::bench::{Point, Response};
 use super::model::{Affine, Vec2, column_norm, distance};
 use super::tuning::{
     CUT_PENALTY_SIDES, GAIN_PRIOR_SHARE, MIN_MOVE_SHARE, PRIOR_OFFSET_PX, SERVO_GROWTH,
@@ -123,7 +123,7 @@ impl Servo {
             return None;
         }
         match &self.model {
-            Some(model) => model.mean().map(|m| m.gain),
+            Some(model) => model.mean(STILL).map(|m| m.gain),
             None => self.given,
         }
     }
@@ -149,7 +149,7 @@ impl Servo {
         self.given = None;
         self.model = self.best.map(|best| {
             let mut model = Response::broad(best.tilt);
-            model.add(best.tilt, best.spot.at, noise(&best.spot));
+            model.add(point(best.tilt, &best.spot), noise(&best.spot));
             model
         });
         self.known = false;
@@ -188,14 +188,14 @@ impl Servo {
                 }
                 None => Response::broad(tilt),
             };
-            model.add(tilt, s.at, r);
+            model.add(point(tilt, s), r);
             self.model = Some(model);
             return true;
         };
-        if self.known && !model.believes(tilt, s.at, r) {
+        if self.known && !model.believes(point(tilt, s), r) {
             return false;
         }
-        model.add(tilt, s.at, r);
+        model.add(point(tilt, s), r);
         true
     }
 
@@ -204,13 +204,13 @@ impl Servo {
     /// (a mount's response changes across its range, which later steps must be free to
     /// correct).
     fn probes_done(&mut self, tilt: Vec2, s: &Spot) {
-        let Some(mean) = self.model.as_ref().and_then(Response::mean) else {
+        let Some(mean) = self.model.as_ref().and_then(|m| m.mean(STILL)) else {
             return;
         };
         let spread = GAIN_PRIOR_SHARE * column_norm(mean.gain);
         let mut model =
             Response::with_prior(tilt, mean.anchored(tilt, s.at), PRIOR_OFFSET_PX, spread);
-        model.add(tilt, s.at, noise(s));
+        model.add(point(tilt, s), noise(s));
         self.model = Some(model);
         self.known = true;
         self.confirmed = !self.cut;
@@ -367,6 +367,18 @@ impl Servo {
 /// `side` px at a response of `response` px per step.
 pub fn useful_probe(side: f64, response: f64) -> f64 {
     SERVO_PROBE_VIEW_SHARE * side / response
+}
+
+/// A station's servo models no dead band: the mount's tracker takes it off the tilts.
+const STILL: Vec2 = [0.0; 2];
+
+/// Spot `s` seen at `tilt`, as the bench model takes it.
+fn point(tilt: Vec2, s: &Spot) -> Point {
+    Point {
+        command: tilt,
+        dir: STILL,
+        image: s.at,
+    }
 }
 
 /// The covariance of a sighting's centre, px².

@@ -26,6 +26,11 @@ pub const PRIOR_OFFSET_PX: f64 = 1.0e4;
 /// so that the probes alone decide.
 pub const PRIOR_GAIN_PX_PER_STEP: f64 = 10.0;
 
+/// Prior standard deviation of the shift a dead band puts on a feature after a move one
+/// way, px, on an axis whose sightings showed one: wider than any band's shift at the
+/// benches' responses (300 steps at 0.5 px per step), so that the sightings alone decide.
+pub const PRIOR_BAND_PX: f64 = 150.0;
+
 /// The smallest scatter of one measured centre, px: a centroid on a real camera is rarely
 /// better (pixel response non-uniformity, quantisation).
 pub const MIN_NOISE_PX: f64 = 0.5;
@@ -151,21 +156,6 @@ pub const OWN_LIGHT_NOISES: f64 = 3.0;
 /// A backdrop holds when taking it off the frame before the throw leaves the beam with
 /// this share of its light.
 pub const KEPT_SHARE: f64 = 0.3;
-
-// The search for a mount's dead band (`play`)
-
-/// Grid points per search pass.
-pub const PLAY_GRID_POINTS: usize = 33;
-
-/// Passes per parameter: the first over its whole range, each later over two cells of
-/// the previous grid around its best.
-pub const PLAY_PASSES: usize = 4;
-
-/// Rounds over the parameters (each searched with the others held at their best so far).
-pub const PLAY_ROUNDS: usize = 3;
-
-/// Local minima of the first grid refined per parameter, the lowest first.
-pub const PLAY_REFINED_MINIMA: usize = 3;
 
 // What a move changed (`see`)
 
@@ -354,28 +344,19 @@ pub const SAME_COMMAND_SHARE: f64 = 0.04;
 /// Commands closer than this are the very same command, steps.
 pub const SAME_STEP: f64 = 1.0;
 
-/// Lost motion is estimated once this many clean sightings were made ...
-pub const LOST_MOTION_MIN_SIGHTINGS: usize = 8;
+/// A dead band is looked for on an axis once this many clean sightings were made after it
+/// moved ...
+pub const BAND_MIN_SIGHTINGS: usize = 8;
 
-/// A first dead band is taken only when it explains more than this many position noises of
-/// each sighting's miss (root mean square).
-pub const LOST_MOTION_WORTH_NOISES: f64 = 6.0;
+/// ... at least this many after moves either way ...
+pub const BAND_PER_SIDE: usize = 2;
 
-/// Plays whose misfits (sums of squared misses, px²) differ by less than this many
-/// squared position noises explain the sightings alike: the simpler one is kept.
-pub const LOST_MOTION_TIE_NOISES: f64 = 4.0;
+/// ... and taken when the fit with it explains the misses beyond chance at this
+/// confidence (an F test) ...
+pub const BAND_CONFIDENCE: f64 = 0.999;
 
-/// The change of a dead band its uncertainty is measured over, steps.
-pub const LOST_MOTION_DELTA: f64 = 1.0;
-
-/// ... with at least this many after moves either way on the axis ...
-pub const LOST_MOTION_PER_SIDE: usize = 2;
-
-/// ... and kept only when it explains this share of the fit's residual, and exceeds its own
-/// standard error this many times.
-pub const LOST_MOTION_GAIN: f64 = 0.3;
-
-pub const LOST_MOTION_SIGNIFICANCE: f64 = 3.0;
+/// ... by more than this many position noises of each sighting's miss (root mean square).
+pub const BAND_WORTH_NOISES: f64 = 6.0;
 
 /// A probe aimed by the rough map of every sighting goes at most this many probe lengths
 /// per axis ...
