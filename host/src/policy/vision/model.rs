@@ -237,6 +237,8 @@ pub struct Tracker {
     /// The axes whose sightings showed a dead band the controller does not compensate
     /// ([`Self::estimate_band`]): only on these does the model fit one.
     band: [bool; 2],
+    /// Half the dead band per axis as a map whose sightings were forgotten showed it, steps.
+    remembered_half_band: Vec2,
     /// The scatter of one measured position, px (set by the agent from what it measured).
     pub noise: f64,
     /// Sightings made so far (clean and partial), for their order.
@@ -262,6 +264,7 @@ impl Tracker {
             previous_dir: [0.0; 2],
             current: None,
             band: [false; 2],
+            remembered_half_band: [0.0; 2],
             noise: 1.0,
             made: 0,
             lost_at: None,
@@ -305,23 +308,38 @@ impl Tracker {
     }
 
     /// Half the dead band of each axis, steps: how far the load trails the motor after a
-    /// move (0 on an axis without one).
+    /// move. On a banded axis, from the bench model; after the sightings of an earlier map
+    /// were forgotten, what that map showed until the new one holds enough sightings to pin
+    /// the band again ([`BAND_MIN_SIGHTINGS`]).
     fn half_band(&self) -> Vec2 {
-        let Some((fit, _)) = self.response().filter(|_| self.band != [false; 2]) else {
-            return [0.0; 2];
-        };
-        let (Some(map), Some(shift)) = (fit.response.mean([0.0; 2]), fit.response.band()) else {
-            return [0.0; 2];
-        };
+        let fitted = self.fitted_half_band();
+        [0, 1].map(|a| match fitted {
+            Some(half) if self.band[a] => half[a],
+            _ => self.remembered_half_band[a],
+        })
+    }
+
+    /// Half the dead band of each axis as the bench model fits it, steps; `None` while no
+    /// axis is banded, or too few sightings pin it where an earlier map showed a band.
+    fn fitted_half_band(&self) -> Option<Vec2> {
+        if self.band == [false; 2] {
+            return None;
+        }
+        let (fit, kept) = self.response()?;
+        if self.remembered_half_band != [0.0; 2] && kept.len() < BAND_MIN_SIGHTINGS {
+            return None;
+        }
+        let map = fit.response.mean([0.0; 2])?;
+        let shift = fit.response.band()?;
         let unit = Affine {
             offset: [0.0; 2],
             gain: map.gain,
         };
         // The shift after a move the positive way is the gain times minus half the band.
-        [0, 1].map(|a| {
+        Some([0, 1].map(|a| {
             unit.solve([shift[0][a], shift[1][a]])
                 .map_or(0.0, |steps| (-steps[a]).max(0.0))
-        })
+        }))
     }
 
     /// Motion lost when an axis reverses, steps, as estimated from the sightings.
@@ -348,8 +366,9 @@ impl Tracker {
     }
 
     /// Forgets every sighting (the feature is seen from elsewhere now, through another
-    /// map), keeping which axes show a dead band.
+    /// map), keeping which axes show a dead band and how wide it is.
     pub fn forget_sightings(&mut self) {
+        self.remembered_half_band = self.half_band();
         self.clean.clear();
         self.partial.clear();
         self.missing.clear();
