@@ -352,8 +352,8 @@ impl Tracker {
     /// [`SAME_STEP`]) goes past the target by half the lost motion on the side it
     /// approaches from; one already there stays.
     pub fn command_to_load(&self, target: Vec2, current: Vec2) -> Vec2 {
-        let load = self.load().unwrap_or(current);
         let half = self.half_band();
+        let load = self.load_with(half).unwrap_or(current);
         [0, 1].map(|a| {
             if target[a] > load[a] + SAME_STEP {
                 target[a] + half[a]
@@ -378,8 +378,12 @@ impl Tracker {
     /// Where the load sits now: the motor's command less half the band the way it last
     /// moved; `None` before the first move.
     pub fn load(&self) -> Option<Vec2> {
+        self.load_with(self.half_band())
+    }
+
+    /// [`Self::load`] for a band of `half` steps each side.
+    fn load_with(&self, half: Vec2) -> Option<Vec2> {
         let current = self.current?;
-        let half = self.half_band();
         Some([0, 1].map(|a| current[a] - half[a] * self.dir[a]))
     }
 
@@ -473,6 +477,11 @@ impl Tracker {
     /// [`Self::local_model`] for commands reached with the axes last moving in `dir`.
     fn local_model_for(&self, dir: Vec2) -> Option<Affine> {
         let (fit, kept) = self.response()?;
+        self.anchored_model(&fit, &kept, dir)
+    }
+
+    /// [`Self::local_model_for`] from the bench model `fit` and the points it `kept`.
+    fn anchored_model(&self, fit: &bench::Fit, kept: &[Point], dir: Vec2) -> Option<Affine> {
         let model = fit.response.mean(dir)?;
         let anchor = self
             .clean
@@ -504,15 +513,17 @@ impl Tracker {
     /// the move takes (which puts the command past the target by half the band on the side
     /// it approaches from); an axis already there stays.
     pub fn command_for(&self, point: Vec2, from: Vec2) -> Option<Vec2> {
+        let (fit, kept) = self.response()?;
+        let solve = |dir: Vec2| self.anchored_model(&fit, &kept, dir)?.solve(point);
         let mut dir = self.dir_from(from, from);
-        let mut target = self.local_model_for(dir)?.solve(point)?;
+        let mut target = solve(dir)?;
         for _ in 0..2 {
             let next = self.dir_from(from, target);
             if next == dir {
                 break;
             }
             dir = next;
-            target = self.local_model_for(dir)?.solve(point)?;
+            target = solve(dir)?;
         }
         let command = [0, 1].map(|a| {
             if (target[a] - from[a]).abs() < SAME_STEP {
