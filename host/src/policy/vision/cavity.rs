@@ -17,9 +17,7 @@ use super::tuning::{
     CHECK_CLEARANCE_RADII, CORE_REACH_RADII, DONE_CONFIDENCE, HIDDEN_RADII, MIN_CHANGE_RADIUS_PX,
     PRIMARY, PRIMARY_CORE_SHARE, RESOLVED_RADII, SAME_STEP, SEARCH_LEVELS, SECONDARY,
 };
-use crate::imaging::{
-    Beam, Changes, core_centre, core_radius, nearest, registered_changes_sized, scene_shift,
-};
+use crate::imaging::{core_centre, core_radius, nearest, registered_changes_sized, scene_shift};
 use crate::task::{Action, CavityLimits};
 
 /// What the last action was for.
@@ -291,9 +289,7 @@ impl CavityAgent {
                 change => change,
             }
         };
-        let seen_to = appeared
-            .map(|s| judge(&s, view))
-            .or_else(|| self.under_core(&changes, primary));
+        let seen_to = appeared.map(|s| judge(&s, view));
         let seen_from = vanished.map(|s| judge(&s, &before));
         // A check is judged before it joins the model: does the model believe it?
         let believed = match seen_to {
@@ -319,31 +315,6 @@ impl CavityAgent {
         };
         self.last_check_seen = seen_to.and_then(Sighting::fit_centre).is_some();
         predicted.is_some() && believed
-    }
-
-    /// While the secondary was never seen: light that appeared on the edge of the primary's
-    /// core, with none vanishing there, in the frames' difference `changes` (taken on the
-    /// primary's shifted scene, so light would vanish beside it too had the primary moved),
-    /// is the rim of a secondary the core hides (the core shows nothing of it). A partial
-    /// sighting there, so that the next probes move it out, instead of a miss at the very
-    /// command that aligns it.
-    fn under_core(&self, changes: &Changes, primary: Primary) -> Option<Sighting> {
-        if !self.tracker.clean.is_empty() || !self.tracker.partial.is_empty() {
-            return None;
-        }
-        let on_core = |b: &&Beam| {
-            b.size() >= MIN_CHANGE_RADIUS_PX
-                && distance(b.centre, primary.centre) - b.size() <= primary.core
-        };
-        if changes.vanished.iter().any(|b| on_core(&b)) {
-            return None;
-        }
-        changes
-            .appeared
-            .iter()
-            .filter(on_core)
-            .max_by(|a, b| a.signal.total_cmp(&b.signal))
-            .map(|b| Sighting::Partial(b.centre))
     }
 
     /// Sizes later probes from the response one probe showed (the secondary moved from
