@@ -11,7 +11,7 @@ use optalign_optics::Frame;
 
 use super::model::{Sighting, Tracker, Vec2, column_norm, distance};
 use super::see::{Motion, Seen, View, motion, stationary_pairs};
-use super::sight::{Scales, sight, touches};
+use super::sight::{Scales, sight};
 use super::tuning::{
     BORDER_RADII, CHECK_APART_RADII, DONE_CONFIDENCE, GRID_VIEW_SHARE, IN_VIEW_RADII,
     MICHELSON_APART_RADII, MICHELSON_CAUTIOUS_SHARE, MICHELSON_MATCH_RADII, MICHELSON_PROBE_GROWTH,
@@ -246,11 +246,7 @@ impl MichelsonAgent {
                 other.map(|p| (p, radius)),
             );
             match sighting {
-                Sighting::Clean(c) | Sighting::Fitted(c)
-                    if !seen.whole || touches(&seen.beam, view) =>
-                {
-                    Sighting::Partial(c)
-                }
+                Sighting::Clean(c) | Sighting::Fitted(c) if !seen.whole => Sighting::Partial(c),
                 other => other,
             }
         };

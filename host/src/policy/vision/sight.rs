@@ -2,16 +2,16 @@
 //! sighting a model can be fitted to. [`Scales`] learns the beams' sizes, how far
 //! stationary features wander between frames (jitter) and how precise a centre is, so
 //! that every threshold is a multiple of something measured on this bench, not a pixel
-//! count of one camera. [`sight`] calls a beam clean when it is whole, compact, alone and
-//! of its known size; a beam the border cuts counts when a Gaussian fits it well. A beam's
-//! size is learned only where it shows with dark all round it.
+//! count of one camera. [`sight`] calls a beam clean when it is whole, compact and clear
+//! of the other beam; a beam the border cuts counts when a Gaussian fits it well. A beam's
+//! size is learned only where it shows with dark all round it. Whether a clean sighting
+//! is this beam at all is the bench model's chi-square test, not a rule of size.
 
 use super::model::{Sighting, Vec2, distance};
 use super::see::View;
 use super::tuning::{
-    CLEAR_OF_BORDER_RADII, DEFAULT_RADIUS_SHARE, DEFAULT_STEADY_RADII, MAX_EXTRAPOLATION,
-    MAX_MISFIT, MIN_NOISE_PX, OVERLAP_RADII, SIGHT_MAX_SIZE_RATIO, SLIVER_EDGE, STEADY_SPREAD,
-    TOUCH_BRIGHTER,
+    CLEAR_OF_BORDER_RADII, DEFAULT_RADIUS_SHARE, DEFAULT_STEADY_RADII, FIT_SIZE_RATIO,
+    MAX_EXTRAPOLATION, MAX_MISFIT, MIN_NOISE_PX, OVERLAP_RADII, STEADY_SPREAD,
 };
 use crate::imaging::{Beam, median};
 
@@ -20,8 +20,6 @@ use crate::imaging::{Beam, median};
 pub struct Scales {
     /// Radii of cleanly seen beams, per feature.
     sizes: [Vec<f64>; 2],
-    /// Their major radii, per feature (when learned from the whole beam).
-    majors: [Vec<f64>; 2],
     /// The median radius of the beams in the views so far.
     typical: Option<f64>,
     /// The shorter image side, px.
@@ -54,16 +52,13 @@ impl Scales {
         self.sizes[k].push(radius);
     }
 
-    /// Learns the size and the length (major radius) of feature `k` from a clean sighting
-    /// of the whole beam in `view`, when it lies clear of the border: beside it, the spot
-    /// may be one lobe of a beam whose node lies on the border (nothing cut shows), and
-    /// its size would make the whole beam seem two merged.
+    /// Learns the size of feature `k` from a clean sighting of the whole beam in `view`,
+    /// when it lies clear of the border: beside it, the spot may be one lobe of a beam whose
+    /// node lies on the border (nothing cut shows), much smaller than the beam.
     pub fn learn_shape(&mut self, k: usize, beam: &Beam, view: &View) {
-        if !clear_of_border(beam, view) {
-            return;
+        if clear_of_border(beam, view) {
+            self.learn_size(k, beam.size());
         }
-        self.learn_size(k, beam.size());
-        self.majors[k].push(beam.radii[0]);
     }
 
     /// Learns the jitter from the displacement of features that stayed between two views.
@@ -86,11 +81,6 @@ impl Scales {
     /// The known radius of feature `k`, when it was seen cleanly.
     pub fn known_radius(&self, k: usize) -> Option<f64> {
         median(self.sizes[k].clone())
-    }
-
-    /// The median major radius of feature `k` seen whole, once known.
-    fn known_major(&self, k: usize) -> Option<f64> {
-        median(self.majors[k].clone())
     }
 
     /// The RMS displacement of stationary features between frames, px, once measured: from
@@ -141,25 +131,10 @@ fn clear_of_border(beam: &Beam, view: &View) -> bool {
     (0..2).all(|a| beam.centre[a] >= margin && size[a] - beam.centre[a] >= margin)
 }
 
-/// Whether `beam` (one of the view's detections) is a part of a larger patch of light:
-/// another detection of `view` lies within [`OVERLAP_RADII`] of their summed sizes and is
-/// [`TOUCH_BRIGHTER`] times brighter at its peak (`beam` is a fringe or tail of two merged
-/// beams), or is a sliver the border cuts (at least [`SLIVER_EDGE`] of its peak there: the
-/// other lobe of a two-lobed beam going on beyond the image). Dimmer neighbours are the
-/// beam's own texture; one alike is another beam or a stray spot the detector told apart.
-pub fn touches(beam: &Beam, view: &View) -> bool {
-    view.beams.iter().any(|other| {
-        let d = distance(other.centre, beam.centre);
-        d > 0.0
-            && d < OVERLAP_RADII * (other.size() + beam.size())
-            && (other.peak >= TOUCH_BRIGHTER * beam.peak || other.edge_level >= SLIVER_EDGE)
-    })
-}
-
-/// How `beam`, taken for feature `k`, serves the model: clean when whole, compact, of the
-/// feature's known size and length and clear of `other` (another known beam's place and
-/// radius); a beam the border cuts is clean at its fitted centre when a Gaussian fits it
-/// well and the centre is not far outside.
+/// How `beam`, taken for feature `k`, serves the model: clean when whole, compact and clear
+/// of `other` (another known beam's place and radius); a beam the border cuts is clean at
+/// its fitted centre when a Gaussian of about the feature's known size fits it well and the
+/// centre is not far outside.
 pub fn sight(
     beam: &Beam,
     view: &View,
@@ -168,16 +143,10 @@ pub fn sight(
     other: Option<(Vec2, f64)>,
 ) -> Sighting {
     let own = scales.known_radius(k);
-    // Two beams merged side by side make a detection much longer than either, though its
-    // mean radius may not grow much.
-    let longer = scales
-        .known_major(k)
-        .is_some_and(|major| beam.radii[0] > SIGHT_MAX_SIZE_RATIO * major);
-    let oversized = longer || own.is_some_and(|r| beam.size() > SIGHT_MAX_SIZE_RATIO * r);
     let radius = own.unwrap_or(beam.size());
     let overlapping =
         other.is_some_and(|(p, r)| distance(beam.centre, p) < OVERLAP_RADII * (r + radius));
-    if !beam.localised || oversized || overlapping {
+    if !beam.localised || overlapping {
         return Sighting::Partial(beam.centre);
     }
     if !beam.clipped {
@@ -187,7 +156,7 @@ pub fn sight(
     let trusted = beam.fit.filter(|f| {
         let outside = |c: f64, side: f64| (-c).max(c - side).max(0.0);
         let beyond = outside(f.centre[0], w).hypot(outside(f.centre[1], h));
-        let alike = own.is_none_or(|r| (f.radius / r - 1.0).abs() < SIGHT_MAX_SIZE_RATIO - 1.0);
+        let alike = own.is_none_or(|r| (f.radius / r - 1.0).abs() < FIT_SIZE_RATIO - 1.0);
         // Cut by two borders at once, too little of the spot shows to extrapolate.
         let near = |c: f64, side: f64| c.min(side - c) < f.radius;
         let corner = near(f.centre[0], w) && near(f.centre[1], h);
@@ -223,12 +192,11 @@ mod tests {
         assert!(!lobe.beams[0].clipped, "{:?}", lobe.beams[0]);
         scales.learn_shape(0, &lobe.beams[0], &lobe);
         assert_eq!(scales.known_radius(0), None, "learned from a lobe");
-        // Seen whole in the middle, the beam is clean (with the lobe's length known, it
-        // would have been taken for two spots merged) and teaches its size.
+        // Seen whole in the middle, the beam is clean and teaches its size, well above
+        // the lobe's.
         let whole = two_lobed([320.0, 240.0]);
         assert_eq!(whole.beams.len(), 1, "{:?}", whole.beams);
-        let lobe_length = lobe.beams[0].radii[0];
-        assert!(whole.beams[0].radii[0] > SIGHT_MAX_SIZE_RATIO * lobe_length);
+        assert!(whole.beams[0].size() > 1.3 * lobe.beams[0].size());
         let seen = sight(&whole.beams[0], &whole, &scales, 0, None);
         assert!(
             matches!(seen, Sighting::Clean(c) if distance(c, [320.0, 240.0]) < 1.0),

@@ -192,19 +192,12 @@ pub const MAX_MISFIT: f64 = 0.1;
 /// A fitted centre is trusted up to this many fitted radii outside the image.
 pub const MAX_EXTRAPOLATION: f64 = 0.4;
 
-/// A beam larger than this many times its known radius has merged with something.
-pub const SIGHT_MAX_SIZE_RATIO: f64 = 1.6;
+/// A Gaussian fitted to a spot the border cuts gives its centre only when its radius
+/// differs from the beam's known radius by less than this ratio less one (60 %).
+pub const FIT_SIZE_RATIO: f64 = 1.6;
 
 /// A beam closer than this many summed radii to another known beam overlaps it.
 pub const OVERLAP_RADII: f64 = 1.2;
-
-/// A neighbouring detection this many times brighter than a detection at its peak holds
-/// the light the detection was split from.
-pub const TOUCH_BRIGHTER: f64 = 1.5;
-
-/// A detection still this share of its peak bright at the border is a sliver of light
-/// that goes on beyond the image.
-pub const SLIVER_EDGE: f64 = 0.5;
 
 /// A beam whose centre lies this many of its major radii from every border shows with
 /// dark all round it.
