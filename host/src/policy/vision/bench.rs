@@ -3,9 +3,9 @@
 //! belief over the ten numbers (offset 2, gain 2 x 2, and for each axis the shift a dead
 //! band between motor and load puts on the feature after a move one way rather than the
 //! other, 2 each) with their covariance. An axis whose band the data do not show is given
-//! no direction (`dir` 0), and its band stays at the prior's zero. Each sighting adds its information
-//! (recursive least squares in information form); the measurement noise is the centre's
-//! scatter. From the belief follow every decision the agents make of it: whether a
+//! no direction (`dir` 0), and its band stays at the prior's zero. Each sighting adds its
+//! information (recursive least squares in information form); the measurement noise is the
+//! centre's scatter. From the belief follow every decision the agents make of it: whether a
 //! sighting is believed (a chi-square test of its innovation), where a command puts the
 //! feature and how surely, and whether the final command is within a tolerance at a
 //! stated confidence.
@@ -48,6 +48,12 @@ pub fn sure_within(cov: Matrix2<f64>, tolerance: f64, confidence: f64, freedom: 
 
 /// How many numbers the model holds.
 const PARAMETERS: usize = 10;
+
+/// Two px-per-axis columns (rows: image x and y; columns: the two axes).
+pub type PerAxis = [[f64; 2]; 2];
+
+/// No direction on either axis: a command whose dead band the model does not fit.
+pub const STILL: Vec2 = [0.0; 2];
 
 type Vector = SVector<f64, PARAMETERS>;
 type Matrix = SMatrix<f64, PARAMETERS, PARAMETERS>;
@@ -128,26 +134,41 @@ impl Response {
         Some((cholesky.solve(&self.projected), cholesky.inverse()))
     }
 
-    /// The most likely map for commands reached with the axes last moving in `dir`.
-    pub fn mean(&self, dir: Vec2) -> Option<Affine> {
-        let (x, _) = self.state()?;
+    /// The mean of the ten numbers alone ([`Self::state`] without the covariance).
+    fn estimate(&self) -> Option<Vector> {
+        Some(self.information.cholesky()?.solve(&self.projected))
+    }
+
+    /// The map of the numbers `x` for commands reached with the axes last moving in `dir`.
+    fn map_of(&self, x: &Vector, dir: Vec2) -> Affine {
         let [[a, b], [c, d]] = [[x[2], x[3]], [x[4], x[5]]];
         let [o0, o1] = self.origin;
         let band = [0, 1].map(|row| dir[0] * x[6 + row] + dir[1] * x[8 + row]);
-        Some(Affine {
+        Affine {
             offset: [
                 x[0] - a * o0 - b * o1 + band[0],
                 x[1] - c * o0 - d * o1 + band[1],
             ],
             gain: [[a, b], [c, d]],
-        })
+        }
     }
 
-    /// The shift each axis's dead band puts on the feature after a move the positive way,
-    /// px (columns: the axes).
-    pub fn band(&self) -> Option<[[f64; 2]; 2]> {
-        let (x, _) = self.state()?;
-        Some([[x[6], x[8]], [x[7], x[9]]])
+    /// The most likely map for commands reached with the axes last moving in `dir`.
+    pub fn mean(&self, dir: Vec2) -> Option<Affine> {
+        Some(self.map_of(&self.estimate()?, dir))
+    }
+
+    /// [`Self::mean`] for any direction, the numbers solved for once.
+    pub fn means(&self) -> Option<impl Fn(Vec2) -> Affine + '_> {
+        let x = self.estimate()?;
+        Some(move |dir| self.map_of(&x, dir))
+    }
+
+    /// The most likely response (px per step) and the shift each axis's dead band puts on
+    /// the feature after a move the positive way, px (columns: the axes).
+    pub fn gain_and_band(&self) -> Option<(PerAxis, PerAxis)> {
+        let x = self.estimate()?;
+        Some(([[x[2], x[3]], [x[4], x[5]]], [[x[6], x[8]], [x[7], x[9]]]))
     }
 
     /// Where the feature shows for `command` reached with the axes last moving in `dir`,
@@ -191,21 +212,22 @@ pub fn model_of<'a>(points: impl Iterator<Item = &'a Point> + Clone, noise: f64)
 
 /// The sum of squared misses of `subset` from `model`, px².
 pub fn squares(model: &Response, subset: &[Point]) -> f64 {
+    let means = model.means();
     subset
         .iter()
         .map(|p| {
-            model.mean(p.dir).map_or(f64::INFINITY, |map| {
-                let at = map.predict(p.command);
-                (at[0] - p.image[0]).powi(2) + (at[1] - p.image[1]).powi(2)
+            means.as_ref().map_or(f64::INFINITY, |mean| {
+                let [dx, dy] = miss(&mean(p.dir), p);
+                dx.powi(2) + dy.powi(2)
             })
         })
         .sum()
 }
 
-/// How far `point` shows from where `map` puts it, px.
-fn miss(map: &Affine, point: &Point) -> f64 {
+/// Where `point` shows less where `map` puts it, px.
+fn miss(map: &Affine, point: &Point) -> Vec2 {
     let at = map.predict(point.command);
-    (at[0] - point.image[0]).hypot(at[1] - point.image[1])
+    [at[0] - point.image[0], at[1] - point.image[1]]
 }
 
 /// The model of the [`CORE_SHARE`] of `points` it fits best (at least `min_keep`), `None`
@@ -232,10 +254,16 @@ fn core(points: &[Point], noise: f64, min_keep: usize) -> Option<Response> {
     let mut subset = points.to_vec();
     let mut model = model_of(subset.iter(), noise);
     while subset.len() > keep {
-        let misses: Vec<f64> = subset
-            .iter()
-            .map(|p| model.mean(p.dir).map(|map| miss(&map, p)))
-            .collect::<Option<_>>()?;
+        let misses: Vec<f64> = {
+            let mean = model.means()?;
+            subset
+                .iter()
+                .map(|p| {
+                    let [dx, dy] = miss(&mean(p.dir), p);
+                    dx.hypot(dy)
+                })
+                .collect()
+        };
         let worst = (0..subset.len()).max_by(|&a, &b| misses[a].total_cmp(&misses[b]))?;
         subset.remove(worst);
         model = model_of(subset.iter(), noise);
@@ -355,11 +383,11 @@ impl Fit {
     }
 
     /// The covariance (px²) of where the feature really lands for `command` (reached with
-    /// the axes last moving in `dir`), the model
-    /// fitted with a scatter of `noise` px per sighting: what the model does not know,
-    /// scaled by the scatter the sightings showed, and that scatter's share beyond `noise`
-    /// (the bench's own: a screw's pitch error, hysteresis, which a new command meets
-    /// afresh and no number of sightings averages away).
+    /// the axes last moving in `dir`), the model fitted with a scatter of `noise` px per
+    /// sighting: what the model does not know, scaled by the scatter the sightings showed,
+    /// and that scatter's share beyond `noise` (the bench's own: a screw's pitch error,
+    /// hysteresis, which a new command meets afresh and no number of sightings averages
+    /// away).
     pub fn error_at(&self, command: Vec2, dir: Vec2, noise: f64) -> Option<Matrix2<f64>> {
         let (_, cov) = self.response.predict(command, dir)?;
         let bench = (self.widening - 1.0) * noise * noise;
@@ -367,9 +395,10 @@ impl Fit {
     }
 
     /// Whether the feature lands within `tolerance` px of the model's prediction for
-    /// `command` (reached with the axes last moving in `dir`) with probability `confidence` ([`Self::error_at`]; while the sightings
-    /// scatter beyond `noise`, that scatter is an estimate from the residuals' degrees of
-    /// freedom, and the test allows for how little a few of them pin it).
+    /// `command` (reached with the axes last moving in `dir`) with probability `confidence`
+    /// ([`Self::error_at`]; while the sightings scatter beyond `noise`, that scatter is an
+    /// estimate from the residuals' degrees of freedom, and the test allows for how little a
+    /// few of them pin it).
     pub fn sure_at(
         &self,
         command: Vec2,
@@ -407,8 +436,6 @@ mod tests {
             image,
         }
     }
-
-    const STILL: Vec2 = [0.0; 2];
 
     /// Deterministic scatter in [-1, 1].
     fn wobble(i: usize) -> f64 {

@@ -213,6 +213,23 @@ pub struct Sight {
     pub fitted: bool,
 }
 
+impl Sight {
+    /// This sighting as the bench model takes it, with its direction on the axes `band`
+    /// marks as banded.
+    fn point(&self, band: [bool; 2]) -> Point {
+        Point {
+            command: self.command,
+            dir: on_axes(self.dir, band),
+            image: self.image,
+        }
+    }
+}
+
+/// `dir` on the axes `mask` marks, 0 on the others.
+fn on_axes(dir: Vec2, mask: [bool; 2]) -> Vec2 {
+    [0, 1].map(|a| if mask[a] { dir[a] } else { 0.0 })
+}
+
 /// What the agent knows about one feature driven by one two-axis actuator.
 #[derive(Clone, Debug)]
 pub struct Tracker {
@@ -286,7 +303,7 @@ impl Tracker {
 
     /// `dir` on the axes whose band the model fits, 0 on the others.
     fn banded(&self, dir: Vec2) -> Vec2 {
-        [0, 1].map(|a| if self.band[a] { dir[a] } else { 0.0 })
+        on_axes(dir, self.band)
     }
 
     /// The direction each banded axis moves in last when the mount is sent from `from` to
@@ -329,11 +346,10 @@ impl Tracker {
         if self.remembered_half_band != [0.0; 2] && kept.len() < BAND_MIN_SIGHTINGS {
             return None;
         }
-        let map = fit.response.mean([0.0; 2])?;
-        let shift = fit.response.band()?;
+        let (gain, shift) = fit.response.gain_and_band()?;
         let unit = Affine {
             offset: [0.0; 2],
-            gain: map.gain,
+            gain,
         };
         // The shift after a move the positive way is the gain times minus half the band.
         Some([0, 1].map(|a| {
@@ -389,34 +405,36 @@ impl Tracker {
 
     /// Sighting `s` as the model takes it: its direction on the banded axes.
     fn point(&self, s: &Sight) -> Point {
-        Point {
-            command: s.command,
-            dir: self.banded(s.dir),
-            image: s.image,
-        }
+        s.point(self.band)
     }
 
     /// The clean sightings a map is fitted to: the whole ones alone once they span both
     /// axes (a fitted centre of a cut spot is less exact), else all; on a banded axis, only
     /// those made after it first moved (before, where in the band the load sat is unknown).
     fn points(&self) -> Vec<Point> {
+        self.points_for(self.band)
+    }
+
+    /// [`Self::points`] with the axes `band` marks taken as banded.
+    fn points_for(&self, band: [bool; 2]) -> Vec<Point> {
         let known: Vec<&Sight> = self
             .clean
             .iter()
-            .filter(|s| (0..2).all(|a| !self.band[a] || s.dir[a] != 0.0))
+            .filter(|s| (0..2).all(|a| !band[a] || s.dir[a] != 0.0))
             .collect();
         let whole: Vec<Point> = known
             .iter()
             .filter(|s| !s.fitted)
-            .map(|s| self.point(s))
+            .map(|s| s.point(band))
             .collect();
         if whole.len() < known.len() && spans_both_axes(&whole, self.min_spread) {
             return whole;
         }
-        known.iter().map(|s| self.point(s)).collect()
+        known.iter().map(|s| s.point(band)).collect()
     }
 
-    /// The fitted model (on effective commands), once the clean sightings span both axes.
+    /// The fitted model for the way the axes last moved, once the clean sightings span both
+    /// axes.
     /// Sightings the others contradict (by more than a few times the position noise) are
     /// dropped one by one, worst first, while more than a minimal fit remains: an early
     /// sighting of a beam cut by the border must not bend the map for ever.
@@ -553,9 +571,7 @@ impl Tracker {
             side(a, 1.0) + side(a, -1.0) >= BAND_MIN_SIGHTINGS
                 && side(a, 1.0).min(side(a, -1.0)) >= BAND_PER_SIDE
         });
-        let mut trial = self.clone();
-        trial.band = [0, 1].map(|a| self.band[a] || eligible[a]);
-        let with = trial.points();
+        let with = self.points_for([0, 1].map(|a| self.band[a] || eligible[a]));
         let freedom = bench::residual_freedom(&with);
         if freedom == 0 || !spans_both_axes(&with, self.min_spread) {
             return false;
@@ -939,7 +955,7 @@ pub(crate) mod tests {
             offset: [900.0, 500.0],
             gain: [[0.17, 0.012], [-0.01, -0.16]],
         };
-        let still = [0.0; 2];
+        let still = bench::STILL;
         let points: Vec<Point> = [[0.0, 0.0], [2000.0, 0.0], [0.0, 2000.0], [1500.0, -700.0]]
             .iter()
             .map(|&command| Point {

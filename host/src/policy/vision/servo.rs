@@ -8,7 +8,7 @@
 
 use nalgebra::Matrix2;
 
-use super::bench::{Point, Response};
+use super::bench::{Point, Response, STILL};
 use super::model::{Affine, Vec2, column_norm, distance};
 use super::tuning::{
     CUT_PENALTY_SIDES, GAIN_PRIOR_SHARE, MIN_MOVE_SHARE, PRIOR_OFFSET_PX, SERVO_GROWTH,
@@ -369,10 +369,8 @@ pub fn useful_probe(side: f64, response: f64) -> f64 {
     SERVO_PROBE_VIEW_SHARE * side / response
 }
 
-/// A station's servo models no dead band: the mount's tracker takes it off the tilts.
-const STILL: Vec2 = [0.0; 2];
-
-/// Spot `s` seen at `tilt`, as the bench model takes it.
+/// Spot `s` seen at `tilt`, as the bench model takes it: with no dead band (the mount's
+/// tracker takes it off the tilts).
 fn point(tilt: Vec2, s: &Spot) -> Point {
     Point {
         command: tilt,
