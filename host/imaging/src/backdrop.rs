@@ -7,7 +7,7 @@
 
 use optalign_optics::Frame;
 
-use super::cells::CellSums;
+use super::cells::{CellSums, f64_sum};
 use super::noise::NoiseMap;
 use super::picture::{Picture, median};
 use super::tuning::BACKDROP_CELL;
@@ -33,8 +33,8 @@ impl Backdrop {
         }
         let scale = a.levels_per_count();
         let (width, height) = (a.width() as usize, a.height() as usize);
-        let sums_a = CellSums::new(a.pixels(), width, height, BACKDROP_CELL);
-        let sums_b = CellSums::new(b.pixels(), width, height, BACKDROP_CELL);
+        let sums_a = CellSums::new(a.pixels(), width, height, BACKDROP_CELL, f64_sum);
+        let sums_b = CellSums::new(b.pixels(), width, height, BACKDROP_CELL, f64_sum);
         let columns = sums_a.columns;
         let levels = a
             .pixels()
@@ -69,7 +69,7 @@ impl Backdrop {
             return None;
         }
         let scale = frame.levels_per_count();
-        let light: Vec<f32> = frame
+        let mut light: Vec<f32> = frame
             .pixels()
             .iter()
             .zip(&self.levels)
@@ -78,20 +78,13 @@ impl Backdrop {
         let noise = picture.noise().hypot(self.noise);
         let stationary = NoiseMap::uniform(self.width, self.height, self.noise);
         let noise_map = picture.noise_map().of_difference(&stationary, 1.0);
-        let light = without_offset(light, self.width, self.height);
+        // Less the median of its cells' means.
+        let cells = CellSums::new(&light, self.width, self.height, BACKDROP_CELL, f64_sum);
+        if let Some(offset) = median(cells.means().collect()) {
+            light.iter_mut().for_each(|v| *v -= offset as f32);
+        }
         Some(picture.with_light(light, noise, noise_map))
     }
-}
-
-/// `light` (`width` wide, `height` high) less the median of its cells' means.
-fn without_offset(mut light: Vec<f32>, width: usize, height: usize) -> Vec<f32> {
-    let means = CellSums::new(&light, width, height, BACKDROP_CELL)
-        .means()
-        .collect();
-    if let Some(offset) = median(means) {
-        light.iter_mut().for_each(|v| *v -= offset as f32);
-    }
-    light
 }
 
 #[cfg(test)]

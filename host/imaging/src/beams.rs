@@ -10,6 +10,7 @@
 //! [`find_faint_beams`] looks for faint broad beams on wider averages, against the noise
 //! the pixels carry place by place, and measures them on the averaged blocks.
 
+use super::cells::{CellSums, around};
 use super::core::pixel_range;
 use super::gaussian::{GaussianFit, GaussianFitter};
 use super::picture::Picture;
@@ -126,15 +127,15 @@ pub fn find_changed(picture: &Picture) -> Vec<Beam> {
     beams_in(picture, 1, Joining::Near)
 }
 
-/// Faint broad beams of up to about `radius` px in `picture` (where [`find_beams`] finds
-/// none), strongest first: found on the narrowest of wider and wider block averages (twice
-/// as wide each time, up to about `radius` across) that shows any, against the noise the
-/// picture's pixels carry place by place (its noise map). A faint broad beam stands out of
-/// heavy noise only on an average of about its own size (it takes in more of its light and
-/// less of the noise per block); finer ones keep nearby beams apart.
+/// As [`find_changed`], and where that finds nothing, faint broad beams of up to about
+/// `radius` px: found on the narrowest of wider and wider block averages (twice as wide each
+/// time, up to about `radius` across) that shows any, against the noise the picture's pixels
+/// carry place by place (its noise map). A faint broad beam stands out of heavy noise only on
+/// an average of about its own size (it takes in more of its light and less of the noise per
+/// block); finer ones keep nearby beams apart.
 pub fn find_faint_beams(picture: &Picture, radius: f64) -> Vec<Beam> {
     let widest = (radius / (2 * BLOCK) as f64).round().max(2.0) as usize;
-    let mut reach = 2;
+    let mut reach = 1;
     loop {
         let beams = beams_in(picture, reach, Joining::Near);
         if !beams.is_empty() || reach >= widest {
@@ -150,17 +151,11 @@ fn beams_in(picture: &Picture, reach: usize, joining: Joining) -> Vec<Beam> {
     let grid = Grid::new(picture, reach);
     let regions = grid.regions();
     let groups = join_regions(picture, &grid, &regions, joining);
-    let owner = grid.partition(&regions, &groups);
+    let owner = grid.partition(&groups);
     let mut beams: Vec<Beam> = groups
         .iter()
         .enumerate()
-        .filter_map(|(id, members)| {
-            let blocks: Vec<usize> = members
-                .iter()
-                .flat_map(|&r| regions[r].blocks.iter().copied())
-                .collect();
-            measure(picture, &grid, &owner, id, &blocks, members.len())
-        })
+        .filter_map(|(id, (blocks, parts))| measure(picture, &grid, &owner, id, blocks, *parts))
         .collect();
     beams.sort_by(|a, b| b.signal.total_cmp(&a.signal));
     let strongest = beams.first().map_or(0.0, |b| b.signal);
@@ -197,58 +192,40 @@ impl Grid {
     /// The picture's blocks, each averaged with the blocks within `reach` of it.
     fn new(picture: &Picture, reach: usize) -> Self {
         let (width, height) = (picture.width(), picture.height());
-        let (bw, bh) = (width.div_ceil(BLOCK), height.div_ceil(BLOCK));
-        let mut sums = vec![0f64; bw * bh];
-        let mut counts = vec![0u32; bw * bh];
-        for (y, row) in picture.light().chunks_exact(width).enumerate() {
-            let base = (y / BLOCK) * bw;
-            for (b, chunk) in row.chunks(BLOCK).enumerate() {
-                sums[base + b] += f64::from(chunk.iter().sum::<f32>());
-                counts[base + b] += chunk.len() as u32;
-            }
-        }
-        let means: Vec<f32> = sums
-            .iter()
-            .zip(&counts)
-            .map(|(s, &n)| (s / f64::from(n.max(1))) as f32)
-            .collect();
+        let blocks = CellSums::new(picture.light(), width, height, BLOCK, |run: &[f32]| {
+            f64::from(run.iter().sum::<f32>())
+        });
+        let (bw, bh) = (blocks.columns, blocks.rows);
+        let means: Vec<f32> = blocks.means().map(|m| m as f32).collect();
         // On the finest average a beam is measured on its pixels' moments in a window
         // that starts from its region; the frame's one read noise keeps those regions as
         // they were (lower thresholds in the dark parts of heavy clipped noise would widen
         // them by noisy rims, and the window with them). Broad averages, whose beams are
         // measured on the averaged blocks, take the noise the pixels carry place by place.
         let map = picture.noise_map();
-        let pixel_noise: Vec<f32> = (0..bw * bh)
-            .map(|b| {
-                if reach > 1 {
-                    map.at((b % bw) * BLOCK + BLOCK / 2, (b / bw) * BLOCK + BLOCK / 2)
-                } else {
-                    picture.noise() as f32
-                }
-            })
-            .collect();
+        let pixel_noise: Vec<f32> = if reach > 1 {
+            (0..bw * bh)
+                .map(|b| map.at((b % bw) * BLOCK + BLOCK / 2, (b / bw) * BLOCK + BLOCK / 2))
+                .collect()
+        } else {
+            vec![picture.noise() as f32; bw * bh]
+        };
         // A smoothed block averages (2 reach + 1)² blocks of BLOCK² pixels (fewer at the
         // border).
         let side = ((2 * reach + 1) * BLOCK) as f32;
         let misfit = picture.background_misfit() as f32;
-        let (smooth, smooth_noise) = if reach == 1 {
-            let mut smooth = vec![0f32; bw * bh];
-            let mut smooth_noise = vec![0f32; bw * bh];
-            for by in 0..bh {
-                for bx in 0..bw {
+        let (smooth, smooth_noise): (Vec<f32>, Vec<f32>) = if reach == 1 {
+            (0..bw * bh)
+                .map(|b| {
                     let (mut sum, mut variance, mut n) = (0f32, 0f32, 0f32);
-                    for ny in by.saturating_sub(1)..(by + 2).min(bh) {
-                        for nx in bx.saturating_sub(1)..(bx + 2).min(bw) {
-                            sum += means[ny * bw + nx];
-                            variance += pixel_noise[ny * bw + nx].powi(2);
-                            n += 1.0;
-                        }
+                    for i in around(b, 1, bw, bh) {
+                        sum += means[i];
+                        variance += pixel_noise[i].powi(2);
+                        n += 1.0;
                     }
-                    smooth[by * bw + bx] = sum / n;
-                    smooth_noise[by * bw + bx] = ((variance / n).sqrt() / side).hypot(misfit);
-                }
-            }
-            (smooth, smooth_noise)
+                    (sum / n, ((variance / n).sqrt() / side).hypot(misfit))
+                })
+                .unzip()
         } else {
             // Wide averages by running sums: their cost does not grow with their width.
             let variances: Vec<f32> = pixel_noise.iter().map(|v| v * v).collect();
@@ -270,24 +247,24 @@ impl Grid {
     }
 
     fn centre_of(&self, block: usize) -> [f64; 2] {
-        [
-            ((block % self.bw) * BLOCK) as f64 + BLOCK as f64 / 2.0,
-            ((block / self.bw) * BLOCK) as f64 + BLOCK as f64 / 2.0,
-        ]
+        [block % self.bw, block / self.bw].map(|i| (i * BLOCK) as f64 + BLOCK as f64 / 2.0)
     }
 
-    /// The (up to eight) blocks around `block`, row by row.
-    fn neighbours(&self, block: usize) -> impl Iterator<Item = usize> + '_ {
-        let (x, y) = (block % self.bw, block / self.bw);
-        (y.saturating_sub(1)..(y + 2).min(self.bh))
-            .flat_map(move |ny| {
-                (x.saturating_sub(1)..(x + 2).min(self.bw)).map(move |nx| ny * self.bw + nx)
-            })
-            .filter(move |&n| n != block)
+    /// Σ v, Σ v x and Σ v y over the centres of `blocks`, `v` the `weight` of each.
+    fn weighted(&self, blocks: &[usize], weight: impl Fn(usize) -> f64) -> [f64; 3] {
+        let mut sums = [0.0; 3];
+        for &b in blocks {
+            let (v, c) = (weight(b), self.centre_of(b));
+            sums[0] += v;
+            sums[1] += v * c[0];
+            sums[2] += v * c[1];
+        }
+        sums
     }
 
     /// Grows `blocks` breadth-first over the blocks labelled `free` that `joins` accepts,
     /// each taking the label of the block it was reached from: the blocks reached, in order.
+    /// (A block's own label is never `free`: its 3 x 3 neighbourhood may include it.)
     fn grow<L: Copy + PartialEq>(
         &self,
         label: &mut [L],
@@ -298,7 +275,7 @@ impl Grid {
         let mut next = 0;
         while let Some(&block) = blocks.get(next) {
             next += 1;
-            for n in self.neighbours(block) {
+            for n in around(block, 1, self.bw, self.bh) {
                 if label[n] == free && joins(n) {
                     label[n] = label[block];
                     blocks.push(n);
@@ -356,9 +333,7 @@ impl Grid {
         let level = CORE_SHARE * brightest(&self.smooth, &blocks);
         let in_core = |b: usize| self.smooth[b] >= level;
         let mut label = vec![OUTSIDE; self.bw * self.bh];
-        for &b in &blocks {
-            label[b] = UNCLAIMED;
-        }
+        blocks.iter().for_each(|&b| label[b] = UNCLAIMED);
         let mut seeds = Vec::new();
         let mut cores = 0u32;
         for &start in &blocks {
@@ -367,16 +342,10 @@ impl Grid {
             }
             label[start] = cores;
             let core = self.grow(&mut label, UNCLAIMED, vec![start], in_core);
-            let core_peak = core
-                .iter()
-                .copied()
-                .max_by(|&a, &b| self.smooth[a].total_cmp(&self.smooth[b]))
-                .unwrap_or(start);
+            let core_peak = brightest_block(&self.smooth, &core).unwrap_or(start);
             let prominent = level + CORE_PROMINENCE_NOISES * self.smooth_noise[core_peak];
             if core.len() < 2 || self.smooth[core_peak] < prominent {
-                for &b in &core {
-                    label[b] = FAINT_CORE;
-                }
+                core.iter().for_each(|&b| label[b] = FAINT_CORE);
                 continue;
             }
             seeds.extend(core);
@@ -385,17 +354,14 @@ impl Grid {
         if cores < 2 {
             return vec![blocks];
         }
-        for &b in &blocks {
-            if label[b] == FAINT_CORE {
-                label[b] = UNCLAIMED;
-            }
+        for l in label.iter_mut().filter(|l| **l == FAINT_CORE) {
+            *l = UNCLAIMED;
         }
         self.grow(&mut label, UNCLAIMED, seeds, |_| true);
         let mut parts = vec![Vec::new(); cores as usize];
+        // The region is connected: every block of it was reached from a core.
         for b in blocks {
-            if let Some(part) = parts.get_mut(label[b] as usize) {
-                part.push(b);
-            }
+            parts[label[b] as usize].push(b);
         }
         parts
     }
@@ -403,18 +369,11 @@ impl Grid {
     fn describe(&self, blocks: Vec<usize>) -> Region {
         let peak = brightest(&self.smooth, &blocks);
         let core = |b: usize| self.smooth[b] >= CORE_SHARE * peak;
-        let (mut sum, mut sx, mut sy) = (0.0, 0.0, 0.0);
-        for &b in blocks.iter().filter(|&&b| core(b)) {
-            let w = f64::from(self.smooth[b]);
-            let c = self.centre_of(b);
-            sum += w;
-            sx += w * c[0];
-            sy += w * c[1];
-        }
-        let core_edge = blocks
-            .iter()
-            .copied()
-            .filter(|&b| core(b) && self.neighbours(b).any(|n| !core(n)))
+        let core_blocks: Vec<usize> = blocks.iter().copied().filter(|&b| core(b)).collect();
+        let [sum, sx, sy] = self.weighted(&core_blocks, |b| f64::from(self.smooth[b]));
+        let core_edge = core_blocks
+            .into_iter()
+            .filter(|&b| around(b, 1, self.bw, self.bh).any(|n| !core(n)))
             .collect();
         Region {
             centre: [sx / sum.max(1e-9), sy / sum.max(1e-9)],
@@ -426,16 +385,12 @@ impl Grid {
 
     /// Every block's beam: the nearest group's (by steps on the block grid), from a
     /// breadth-first spread out of every group's own blocks.
-    fn partition(&self, regions: &[Region], groups: &[Vec<usize>]) -> Vec<u32> {
+    fn partition(&self, groups: &[(Vec<usize>, usize)]) -> Vec<u32> {
         let mut owner = vec![u32::MAX; self.bw * self.bh];
-        let mut seeds = Vec::new();
-        for (id, members) in groups.iter().enumerate() {
-            for &r in members {
-                for &b in &regions[r].blocks {
-                    owner[b] = id as u32;
-                    seeds.push(b);
-                }
-            }
+        let mut seeds: Vec<usize> = Vec::new();
+        for (id, (blocks, _)) in groups.iter().enumerate() {
+            blocks.iter().for_each(|&b| owner[b] = id as u32);
+            seeds.extend(blocks);
         }
         self.grow(&mut owner, u32::MAX, seeds, |_| true);
         owner
@@ -445,6 +400,14 @@ impl Grid {
 /// The brightest of `blocks` in `values` (a grid's, row-major).
 fn brightest(values: &[f32], blocks: &[usize]) -> f32 {
     blocks.iter().map(|&b| values[b]).fold(f32::MIN, f32::max)
+}
+
+/// Which of `blocks` is the brightest in `values` (the last of equals).
+fn brightest_block(values: &[f32], blocks: &[usize]) -> Option<usize> {
+    blocks
+        .iter()
+        .copied()
+        .max_by(|&a, &b| values[a].total_cmp(&values[b]))
 }
 
 /// The mean of `values` (a `bw` x `bh` grid, row-major) over the cells within `reach` of
@@ -475,14 +438,14 @@ fn box_means(values: &[f32], bw: usize, bh: usize, reach: usize) -> Vec<f32> {
 }
 
 /// Groups regions that belong to one beam: cores close relative to their distance, peaks
-/// alike, and with [`Joining::AcrossDarkValley`] a dark valley between them. Each group
-/// lists region indices.
+/// alike, and with [`Joining::AcrossDarkValley`] a dark valley between them. Each group:
+/// its regions' blocks, and how many regions it joins.
 fn join_regions(
     picture: &Picture,
     grid: &Grid,
     regions: &[Region],
     joining: Joining,
-) -> Vec<Vec<usize>> {
+) -> Vec<(Vec<usize>, usize)> {
     let tails: Vec<Option<Tail>> = match joining {
         Joining::AcrossDarkValley => regions.iter().map(|r| Tail::of(picture, grid, r)).collect(),
         Joining::Near => Vec::new(),
@@ -511,15 +474,17 @@ fn join_regions(
             }
         }
     }
-    let mut groups: Vec<Vec<usize>> = Vec::new();
+    let mut groups: Vec<(Vec<usize>, usize)> = Vec::new();
     let mut index = vec![usize::MAX; regions.len()];
-    for r in 0..regions.len() {
+    for (r, region) in regions.iter().enumerate() {
         let top = root(&mut parent, r);
         if index[top] == usize::MAX {
             index[top] = groups.len();
-            groups.push(Vec::new());
+            groups.push((Vec::new(), 0));
         }
-        groups[index[top]].push(r);
+        let (blocks, parts) = &mut groups[index[top]];
+        blocks.extend(&region.blocks);
+        *parts += 1;
     }
     groups
 }
@@ -560,13 +525,7 @@ fn dark_between(
 /// moments about it (xx, yy, xy), px²; `None` when they hold no light.
 fn block_moments(grid: &Grid, blocks: &[usize]) -> Option<([f64; 2], [f64; 3])> {
     let light = |b: usize| f64::from(grid.means[b].max(0.0));
-    let (mut s, mut sx, mut sy) = (0.0, 0.0, 0.0);
-    for &b in blocks {
-        let (v, c) = (light(b), grid.centre_of(b));
-        s += v;
-        sx += v * c[0];
-        sy += v * c[1];
-    }
+    let [s, sx, sy] = grid.weighted(blocks, light);
     if s <= 0.0 {
         return None;
     }
@@ -594,12 +553,8 @@ struct Tail {
 impl Tail {
     /// `None` when the region is saturated or its blocks do not spread along both axes.
     fn of(picture: &Picture, grid: &Grid, region: &Region) -> Option<Self> {
-        let brightest = region
-            .blocks
-            .iter()
-            .copied()
-            .max_by(|&i, &j| grid.means[i].total_cmp(&grid.means[j]))?;
-        if block_pixels(brightest, grid, picture).any(|p| picture.is_saturated(p)) {
+        let brightest = brightest_block(&grid.means, &region.blocks)?;
+        if block_pixels(brightest, grid, picture).any(|p| picture.saturated()[p]) {
             return None;
         }
         let (centre, [cxx, cyy, cxy]) = block_moments(grid, &region.blocks)?;
@@ -661,11 +616,12 @@ struct Window<'a> {
 }
 
 /// The pixels of `window` (above the moment floor), as runs along rows:
-/// `visit(y, x_from, x_to)` for each.
-fn owned_runs(window: &Window, mut visit: impl FnMut(usize, usize, usize)) {
+/// `visit(y, x_from, light)` for each, `light` the run's pixels.
+fn owned_runs(window: &Window, mut visit: impl FnMut(usize, usize, &[f32])) {
     let (picture, grid) = (window.picture, window.grid);
+    let (w, light) = (picture.width(), picture.light());
     let span = |axis: usize, side: usize| pixel_range(window.centre[axis], window.half[axis], side);
-    let (xs, ys) = (span(0, picture.width()), span(1, picture.height()));
+    let (xs, ys) = (span(0, w), span(1, picture.height()));
     let floor = MOMENT_FLOOR_MISFITS * picture.background_misfit() as f32;
     for y in ys {
         let row = (y / BLOCK) * grid.bw..(y / BLOCK + 1) * grid.bw;
@@ -676,22 +632,35 @@ fn owned_runs(window: &Window, mut visit: impl FnMut(usize, usize, usize)) {
             let end = ((block + 1) * BLOCK).min(xs.end);
             let above_floor = floor <= 0.0 || smooth_row[block] > floor;
             if block_row[block] == window.id && above_floor {
-                visit(y, x, end);
+                visit(y, x, &light[y * w + x..y * w + end]);
             }
             x = end;
         }
     }
 }
 
-/// The first and second moments of beam `id` over the pixels it owns in the window
-/// `centre ± half`.
+/// The first and second moments of the pixels of `window`, about its centre.
 fn window_moments(window: &Window) -> Moments {
-    let (picture, centre) = (window.picture, window.centre);
-    let w = picture.width();
-    let light = picture.light();
-    let mut m = Moments::default();
+    let centre = window.centre;
     // Per row in f32 (a few hundred terms), summed into the totals in f64.
-    let row_sums = |y: usize, m: &mut Moments, sums: [f32; 6]| {
+    let mut rows: Vec<(usize, [f32; 6])> = Vec::new();
+    owned_runs(window, |y, from, light| {
+        if rows.last().is_none_or(|&(row, _)| row != y) {
+            rows.push((y, [0.0; 6]));
+        }
+        let sums = &mut rows.last_mut().expect("pushed").1;
+        for (x, v) in (from..).zip(light) {
+            let d = (x as f64 + 0.5 - centre[0]) as f32;
+            sums[0] += v;
+            sums[1] += v * d;
+            sums[2] += v * d * d;
+            sums[4] += d;
+            sums[5] += d * d;
+        }
+        sums[3] += light.len() as f32;
+    });
+    let mut m = Moments::default();
+    for (y, sums) in rows {
         let [s, sx, sxx, n, gx, gxx] = sums.map(f64::from);
         let py = y as f64 + 0.5 - centre[1];
         m.s += s;
@@ -704,52 +673,28 @@ fn window_moments(window: &Window) -> Moments {
         m.gxx += gxx;
         m.gyy += n * py * py;
         m.gxy += gx * py;
-    };
-    let mut current: Option<(usize, [f32; 6])> = None;
-    owned_runs(window, |y, from, to| {
-        if let Some((row, sums)) = current
-            && row != y
-        {
-            row_sums(row, &mut m, sums);
-            current = None;
-        }
-        let sums = &mut current.get_or_insert((y, [0.0; 6])).1;
-        for (x, v) in (from..to).zip(&light[y * w + from..y * w + to]) {
-            let d = (x as f64 + 0.5 - centre[0]) as f32;
-            sums[0] += v;
-            sums[1] += v * d;
-            sums[2] += v * d * d;
-            sums[4] += d;
-            sums[5] += d * d;
-        }
-        sums[3] += (to - from) as f32;
-    });
-    if let Some((row, sums)) = current {
-        row_sums(row, &mut m, sums);
     }
     m
 }
 
 /// How surely the centroid of beam `id` in the window `centre ± half` is known, from the
 /// light itself: its pixels split into nine interleaved classes of square cells `cell` px
-/// wide (a 3 x 3 pattern on the pixel grid), each class's own centroid, and their scatter. Each class samples
-/// the whole beam evenly (cells far finer than the beam: shape cancels), so the classes'
-/// centroids differ only by what is random at scales finer than a cell: read noise, and
-/// the texture, fringes or speckle the beam carries. The covariance of their mean, px²;
-/// `None` when a class holds no light.
+/// wide (a 3 x 3 pattern on the pixel grid), each class's own centroid, and their scatter.
+/// Each class samples the whole beam evenly (cells far finer than the beam: shape cancels),
+/// so the classes' centroids differ only by what is random at scales finer than a cell:
+/// read noise, and the texture, fringes or speckle the beam carries. The covariance of
+/// their mean, px²; `None` when a class holds no light.
 fn split_covariance(window: &Window, cell: usize) -> Option<[[f64; 2]; 2]> {
-    let (picture, centre) = (window.picture, window.centre);
-    let w = picture.width();
-    let light = picture.light();
+    let centre = window.centre;
     // Cells on the pixel grid, whole pixels wide: every class holds the same share of
     // pixels in every stretch of three cells (cells of fractional width would give one
     // class a pixel more here and there, which on a beam's steep flanks is shape).
     let class_of = |pixel: usize| (pixel / cell) % 3;
     let mut sums = [[0f64; 3]; SPLIT_CLASSES];
-    owned_runs(window, |y, from, to| {
+    owned_runs(window, |y, from, light| {
         let dy = y as f64 + 0.5 - centre[1];
         let row = 3 * class_of(y);
-        for (x, &v) in (from..to).zip(&light[y * w + from..y * w + to]) {
+        for (x, &v) in (from..).zip(light) {
             let dx = x as f64 + 0.5 - centre[0];
             let class = &mut sums[row + class_of(x)];
             let v = f64::from(v);
@@ -813,7 +758,7 @@ fn measure(
     let saturated_pixels = blocks
         .iter()
         .flat_map(|&b| block_pixels(b, grid, picture))
-        .filter(|&i| picture.is_saturated(i))
+        .filter(|&i| picture.saturated()[i])
         .count();
     let beam = Beam {
         centre: footprint.centre,
@@ -843,21 +788,11 @@ fn measure(
 /// average's own width (a box `L` wide adds `L²/12` to a spot's variance along each axis;
 /// the box keeps its light). `None` when they do not fall off like a spot.
 fn faint_footprint(grid: &Grid, blocks: &[usize]) -> Option<Footprint> {
-    let (mut s, mut sx, mut sy) = (0.0, 0.0, 0.0);
-    for &b in blocks {
-        let (v, c) = (f64::from(grid.smooth[b]), grid.centre_of(b));
-        s += v;
-        sx += v * c[0];
-        sy += v * c[1];
-    }
-    if s <= 0.0 {
-        return None;
-    }
+    let [s, sx, sy] = grid.weighted(blocks, |b| f64::from(grid.smooth[b]));
     let width = ((2 * grid.reach + 1) * BLOCK) as f64;
     let mut fitter = GaussianFitter::new([sx / s, sy / s], width);
     for &b in blocks {
-        let c = grid.centre_of(b);
-        fitter.add(c[0], c[1], f64::from(grid.smooth[b]));
+        fitter.add(grid.centre_of(b), f64::from(grid.smooth[b]));
     }
     let fit = fitter.finish(0.0)?;
     let radius = (fit.radius.powi(2) - width * width / 3.0)
@@ -916,29 +851,26 @@ fn window_footprint(
         centre,
         half,
     };
-    for _ in 0..20 {
-        let moments = window_moments(&window(centre, half));
-        if moments.s <= 0.0 {
+    // Up to 20 steps to the window's centroid, then the moments about the final centre.
+    let (mut steps, mut settled) = (0, false);
+    let (m, mean) = loop {
+        let m = window_moments(&window(centre, half));
+        if m.s <= 0.0 {
             return None;
         }
-        let shift = [moments.sx / moments.s, moments.sy / moments.s];
-        centre = [centre[0] + shift[0], centre[1] + shift[1]];
-        let var = [
-            (moments.sxx / moments.s - shift[0].powi(2)).max(MIN_MOMENT_VARIANCE_PX2),
-            (moments.syy / moments.s - shift[1].powi(2)).max(MIN_MOMENT_VARIANCE_PX2),
-        ];
-        half = var.map(half_for);
-        if shift[0].hypot(shift[1]) < SETTLED_PX {
-            break;
+        let mean = [m.sx / m.s, m.sy / m.s];
+        centre = [centre[0] + mean[0], centre[1] + mean[1]];
+        if settled {
+            break (m, mean);
         }
-    }
-    // Moments about the final centre.
-    let m = window_moments(&window(centre, half));
-    if m.s <= 0.0 {
-        return None;
-    }
-    let mean = [m.sx / m.s, m.sy / m.s];
-    let centre = [centre[0] + mean[0], centre[1] + mean[1]];
+        half = [
+            (m.sxx / m.s - mean[0].powi(2)).max(MIN_MOMENT_VARIANCE_PX2),
+            (m.syy / m.s - mean[1].powi(2)).max(MIN_MOMENT_VARIANCE_PX2),
+        ]
+        .map(half_for);
+        steps += 1;
+        settled = steps == 20 || mean[0].hypot(mean[1]) < SETTLED_PX;
+    };
     let cxx = m.sxx / m.s - mean[0].powi(2);
     let cyy = m.syy / m.s - mean[1].powi(2);
     let cxy = m.sxy / m.s - mean[0] * mean[1];
@@ -949,7 +881,10 @@ fn window_footprint(
     if cxx <= 0.0 || cyy <= 0.0 || cxx * cyy <= cxy * cxy {
         return None;
     }
-    let (major, minor, angle) = principal(cxx, cyy, cxy);
+    // The principal axes: the covariance's eigenvalues, and the major axis's direction.
+    let (mid, diff) = ((cxx + cyy) / 2.0, ((cxx - cyy) / 2.0).hypot(cxy));
+    let (major, minor) = (mid + diff, (mid - diff).max(0.0));
+    let angle = 0.5 * (2.0 * cxy).atan2(cxx - cyy);
     let cell = (2.0 * minor.sqrt() / SPLIT_CELLS_PER_RADIUS)
         .round()
         .max(1.0) as usize;
@@ -981,14 +916,6 @@ fn with_texture(read: [[f64; 2]; 2], split: [[f64; 2]; 2]) -> [[f64; 2]; 2] {
     ]
 }
 
-/// Eigen-decomposition of a 2 x 2 covariance: (major, minor, angle of the major axis).
-fn principal(cxx: f64, cyy: f64, cxy: f64) -> (f64, f64, f64) {
-    let mean = (cxx + cyy) / 2.0;
-    let diff = ((cxx - cyy) / 2.0).hypot(cxy);
-    let angle = 0.5 * (2.0 * cxy).atan2(cxx - cyy);
-    (mean + diff, (mean - diff).max(0.0), angle)
-}
-
 /// The row-major pixel indices of a block of `picture`.
 fn block_pixels(block: usize, grid: &Grid, picture: &Picture) -> impl Iterator<Item = usize> {
     let (w, h) = (picture.width(), picture.height());
@@ -1007,7 +934,7 @@ fn roughness(picture: &Picture, grid: &Grid, blocks: &[usize], peak: f64) -> f64
         .filter(|&&b| f64::from(grid.means[b]) >= f64::from(CORE_SHARE) * peak)
     {
         for i in block_pixels(b, grid, picture) {
-            if i % w + 1 >= w || picture.is_saturated(i) || picture.is_saturated(i + 1) {
+            if i % w + 1 >= w || picture.saturated()[i] || picture.saturated()[i + 1] {
                 continue;
             }
             differences += f64::from((light[i + 1] - light[i]).abs());
@@ -1033,14 +960,13 @@ fn fit_gaussian(
 ) -> Option<GaussianFit> {
     let block_noise = picture.noise() / BLOCK as f64;
     let floor = (FIT_FLOOR_NOISES * block_noise).max(FIT_FLOOR_SHARE * beam.peak);
-    let mut fitter = GaussianFitter::new(beam.centre, beam.size().max(1.0));
+    let mut fitter = GaussianFitter::new(beam.centre, beam.size());
     for &b in blocks {
         let mean = f64::from(grid.means[b]);
-        if mean <= floor || block_pixels(b, grid, picture).any(|i| picture.is_saturated(i)) {
+        if mean <= floor || block_pixels(b, grid, picture).any(|i| picture.saturated()[i]) {
             continue;
         }
-        let c = grid.centre_of(b);
-        fitter.add(c[0], c[1], mean);
+        fitter.add(grid.centre_of(b), mean);
     }
     fitter
         .finish(block_noise)

@@ -1,5 +1,5 @@
-//! Sums over a grid of square cells: what a background fit or a noise map reads an image
-//! through, one pass over its pixels.
+//! Sums over a grid of square cells in one pass over an image's pixels, for a background fit,
+//! a noise map and the beam finder's blocks; and the cells around a cell of such a grid.
 
 /// The sums and pixel counts of an image's values over square cells, row-major.
 pub(crate) struct CellSums {
@@ -11,12 +11,14 @@ pub(crate) struct CellSums {
 
 impl CellSums {
     /// Sums `values` (row-major, `width` wide, `height` high) over cells of side `cell`
-    /// (the last row and column of cells may be narrower).
-    pub(crate) fn new<T: Copy + Into<f64>>(
+    /// (the last row and column of cells may be narrower), each cell's run of a row
+    /// summed by `run_sum` ([`f64_sum`], or faster in a narrower type).
+    pub(crate) fn new<T>(
         values: &[T],
         width: usize,
         height: usize,
         cell: usize,
+        run_sum: impl Fn(&[T]) -> f64,
     ) -> Self {
         let (columns, rows) = (width.div_ceil(cell), height.div_ceil(cell));
         let mut sums = vec![0f64; columns * rows];
@@ -24,7 +26,7 @@ impl CellSums {
         for (y, row) in values.chunks_exact(width).enumerate() {
             let base = (y / cell) * columns;
             for (c, chunk) in row.chunks(cell).enumerate() {
-                sums[base + c] += chunk.iter().map(|&v| v.into()).sum::<f64>();
+                sums[base + c] += run_sum(chunk);
                 counts[base + c] += chunk.len() as f64;
             }
         }
@@ -43,4 +45,18 @@ impl CellSums {
             .zip(&self.counts)
             .map(|(s, n)| s / n.max(1.0))
     }
+}
+
+/// The sum of `run`, each value taken in f64.
+pub(crate) fn f64_sum<T: Copy + Into<f64>>(run: &[T]) -> f64 {
+    run.iter().map(|&v| v.into()).sum::<f64>()
+}
+
+/// The cells within `reach` of cell `i` (itself included) of a `w` x `h` grid, row-major
+/// indices, row by row.
+pub(crate) fn around(i: usize, reach: usize, w: usize, h: usize) -> impl Iterator<Item = usize> {
+    let (x, y) = (i % w, i / w);
+    (y.saturating_sub(reach)..(y + reach + 1).min(h)).flat_map(move |ny| {
+        (x.saturating_sub(reach)..(x + reach + 1).min(w)).map(move |nx| ny * w + nx)
+    })
 }

@@ -11,8 +11,8 @@
 //! shows nothing.
 
 use super::beams::{Beam, find_changed, find_faint_beams};
-use super::cells::CellSums;
-use super::picture::{MAD_TO_SIGMA, Picture, kept, median, median_f32};
+use super::cells::{CellSums, around, f64_sum};
+use super::picture::{Picture, kept, median_f32, robust_spread};
 use super::tuning::{
     BACKGROUND_STRIDE, GAIN_MIN_PIXELS, GAIN_NOISES, GAIN_STRIDE, LEVEL_CELL, LEVEL_OUTLIER,
     SIDE_BLOCK, SIDE_NOISES,
@@ -54,8 +54,7 @@ pub fn registered_changes_sized(
     changes_found(before, after, shift, Some(radius))
 }
 
-/// The changes from `before` to `after` (the scene moved by `shift`); with `faint`, a beam
-/// of that radius is looked for on wider averages where the finest shows nothing.
+/// [`registered_changes_sized`] with `faint` the beam's radius, [`registered_changes`] without.
 fn changes_found(
     before: &Picture,
     after: &Picture,
@@ -68,7 +67,7 @@ fn changes_found(
     let (w, h) = (after.width(), after.height());
     let earlier = Shifted::new(before, shift);
     let (a, b) = (after.light(), &earlier.light);
-    let known = |i: usize| !earlier.unknown[i] && !after.is_saturated(i);
+    let known = |i: usize| !earlier.unknown[i] && !after.saturated()[i];
     // Each picture's light is taken above its own background, and two fits of a bright,
     // structured background may settle a few gray levels apart: the later picture's light
     // is put on the earlier one's background, and what is then left of the change over
@@ -77,10 +76,12 @@ fn changes_found(
     for (lower, a) in stayed.iter_mut().zip(a) {
         *lower = a - *lower;
     }
-    let mut difference: Vec<f32> = (0..w * h)
-        .map(|i| if known(i) { stayed[i] - b[i] } else { 0.0 })
-        .collect();
-    let [level, slope_x, slope_y] = level_plane(&difference, w, h);
+    let difference = |stayed: &[f32], g: f32| -> Vec<f32> {
+        (0..w * h)
+            .map(|i| if known(i) { stayed[i] - g * b[i] } else { 0.0 })
+            .collect()
+    };
+    let [level, slope_x, slope_y] = level_plane(&difference(&stayed, 1.0), w, h);
     for (y, row) in stayed.chunks_exact_mut(w).enumerate() {
         let y = y as f64 + 0.5;
         for (x, v) in row.iter_mut().enumerate() {
@@ -88,21 +89,15 @@ fn changes_found(
         }
     }
     let gain = steady_gain(&earlier, before.noise(), after, &stayed);
-    let g = gain as f32;
-    for (i, d) in difference.iter_mut().enumerate() {
-        if known(i) {
-            *d = stayed[i] - g * b[i];
-        }
-    }
+    let difference = difference(&stayed, gain as f32);
     let noise = after.noise().hypot(gain * before.noise());
     let noise_map = after.noise_map().of_difference(before.noise_map(), gain);
     let side = |sign: f32| {
         let light = one_side(&difference, w, h, sign, noise);
         let picture = Picture::from_light(w, h, light, noise, noise_map.clone());
-        let beams = find_changed(&picture);
         match faint {
-            Some(radius) if beams.is_empty() => find_faint_beams(&picture, radius),
-            _ => beams,
+            Some(radius) => find_faint_beams(&picture, radius),
+            None => find_changed(&picture),
         }
     };
     let back = [-shift[0], -shift[1]];
@@ -163,15 +158,12 @@ impl Shifted {
         };
         let (wx, px) = split(shift[0]);
         let (wy, py) = split(shift[1]);
-        let light = picture.light();
+        let source = picture.light();
         let saturated = picture.saturated();
-        let mut out = Self {
-            light: vec![0.0; w * h],
-            unknown: vec![true; w * h],
-        };
         let taps = |whole: isize, part: f32| [(whole, 1.0 - part), (whole + 1, part)];
-        for y in 0..h {
-            for x in 0..w {
+        let (light, unknown): (Vec<f32>, Vec<bool>) = (0..w * h)
+            .map(|pixel| {
+                let (x, y) = (pixel % w, pixel / w);
                 let (mut sum, mut unknown) = (0f32, false);
                 for (dy, fy) in taps(wy, py) {
                     for (dx, fx) in taps(wx, px) {
@@ -186,14 +178,13 @@ impl Shifted {
                         }
                         let i = sy as usize * w + sx as usize;
                         unknown |= saturated[i];
-                        sum += weight * light[i];
+                        sum += weight * source[i];
                     }
                 }
-                out.light[y * w + x] = sum;
-                out.unknown[y * w + x] = unknown;
-            }
-        }
-        out
+                (sum, unknown)
+            })
+            .unzip();
+        Self { light, unknown }
     }
 }
 
@@ -203,7 +194,7 @@ impl Shifted {
 /// whole frame that an average as wide as a broad beam would show. Cells holding a moved
 /// beam are left out of the fit as outliers.
 fn level_plane(difference: &[f32], w: usize, h: usize) -> [f64; 3] {
-    let sums = CellSums::new(difference, w, h, LEVEL_CELL);
+    let sums = CellSums::new(difference, w, h, LEVEL_CELL, f64_sum);
     let centre = |i: usize, side: usize| {
         ((i * LEVEL_CELL) as f64 + (((i + 1) * LEVEL_CELL).min(side) as f64)) / 2.0
     };
@@ -230,8 +221,7 @@ fn level_plane(difference: &[f32], w: usize, h: usize) -> [f64; 3] {
         let residual = |(row, level): &([f64; 3], f64)| {
             (level - plane[0] - plane[1] * row[1] - plane[2] * row[2]).abs()
         };
-        let residuals = kept(&cells, &keep).map(residual).collect();
-        let spread = MAD_TO_SIGMA * median(residuals).unwrap_or(0.0);
+        let spread = robust_spread(kept(&cells, &keep).map(residual));
         let next: Vec<bool> = cells
             .iter()
             .map(|c| residual(c) <= LEVEL_OUTLIER * spread)
@@ -265,21 +255,12 @@ fn one_side(difference: &[f32], w: usize, h: usize, sign: f32, noise: f64) -> Ve
         .map(|(s, n)| s / n.max(1.0) < limit)
         .collect();
     let masked: Vec<bool> = (0..bw * bh)
-        .map(|b| {
-            let (bx, by) = (b % bw, b / bw);
-            (by.saturating_sub(1)..(by + 2).min(bh))
-                .any(|y| (bx.saturating_sub(1)..(bx + 2).min(bw)).any(|x| opposite[y * bw + x]))
-        })
+        .map(|b| around(b, 1, bw, bh).any(|n| opposite[n]))
         .collect();
     let mut out = Vec::with_capacity(difference.len());
     for (y, row) in difference.chunks_exact(w).enumerate() {
-        let base = (y / SIDE_BLOCK) * bw;
-        for (b, chunk) in row.chunks(SIDE_BLOCK).enumerate() {
-            if masked[base + b] {
-                out.extend(std::iter::repeat_n(0.0, chunk.len()));
-            } else {
-                out.extend(chunk.iter().map(|v| v * sign));
-            }
+        for (chunk, &zero) in row.chunks(SIDE_BLOCK).zip(&masked[(y / SIDE_BLOCK) * bw..]) {
+            out.extend(chunk.iter().map(|v| if zero { 0.0 } else { v * sign }));
         }
     }
     out
@@ -295,7 +276,7 @@ fn steady_gain(before: &Shifted, before_noise: f64, after: &Picture, stayed: &[f
     let mut ratios: Vec<f32> = (0..b.len())
         .step_by(GAIN_STRIDE)
         .filter(|&i| {
-            b[i] > floor_b && stayed[i] > floor_a && !before.unknown[i] && !after.is_saturated(i)
+            b[i] > floor_b && stayed[i] > floor_a && !before.unknown[i] && !after.saturated()[i]
         })
         .map(|i| stayed[i] / b[i])
         .collect();

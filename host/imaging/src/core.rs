@@ -1,7 +1,7 @@
 //! A beam's bright core, the light above a share of the beam's peak around the beam: its
-//! centre (the centroid of that light) and its size. Faint neighbours (a ghost on a bright beam's halo, a stray
-//! spot inside its wide window) lie below that level and pull nothing; a saturated core's
-//! flat top is symmetric, so its centre holds.
+//! centre (the centroid of that light) and its size. Faint neighbours (a ghost on a bright
+//! beam's halo, a stray spot inside its wide window) lie below that level and pull nothing; a
+//! saturated core's flat top is symmetric, so its centre holds.
 
 use super::tuning::{CORE_PASSES, CORE_WINDOW_RADII};
 use super::{Beam, Picture};
@@ -18,14 +18,10 @@ pub fn core_centre(picture: &Picture, beam: &Beam, share: f64) -> Option<[f64; 2
         let (mut s, mut sx, mut sy) = (0.0f64, 0.0f64, 0.0f64);
         for y in pixel_range(centre[1], half, h) {
             let row = &light[y * w..(y + 1) * w];
-            let (mut rs, mut rsx) = (0f32, 0f32);
-            for x in pixel_range(centre[0], half, w) {
-                let above = row[x] - level;
-                if above > 0.0 {
-                    rs += above;
-                    rsx += above * x as f32;
-                }
-            }
+            let (rs, rsx) = pixel_range(centre[0], half, w)
+                .map(|x| (row[x] - level, x as f32))
+                .filter(|&(above, _)| above > 0.0)
+                .fold((0f32, 0f32), |(rs, rsx), (a, x)| (rs + a, rsx + a * x));
             s += f64::from(rs);
             sx += f64::from(rsx);
             sy += f64::from(rs) * y as f64;
@@ -53,7 +49,7 @@ pub fn core_radius(
     let light = picture.light();
     let bright = pixel_range(centre[1], reach, h)
         .flat_map(|y| pixel_range(centre[0], reach, w).map(move |x| y * w + x))
-        .filter(|&i| light[i] > level || picture.is_saturated(i))
+        .filter(|&i| light[i] > level || picture.saturated()[i])
         .count();
     (bright as f64 / std::f64::consts::PI).sqrt()
 }

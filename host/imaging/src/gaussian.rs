@@ -46,13 +46,10 @@ impl GaussianFitter {
         }
     }
 
-    /// Adds a pixel at (`x`, `y`) with `value` above the background (must be positive).
+    /// Adds a pixel at `point` with `value` above the background (must be positive).
     /// The weight `value²` makes the log-space fit a linear-space fit of the bright part.
-    pub fn add(&mut self, x: f64, y: f64, value: f64) {
-        let (u, v) = (
-            (x - self.origin[0]) / self.scale,
-            (y - self.origin[1]) / self.scale,
-        );
+    pub fn add(&mut self, point: [f64; 2], value: f64) {
+        let [u, v] = [0, 1].map(|a| (point[a] - self.origin[a]) / self.scale);
         let row = Vector4::new(1.0, u, v, u * u + v * v);
         let (weight, target) = (value * value, value.ln());
         self.normal += row * row.transpose() * weight;
@@ -73,15 +70,12 @@ impl GaussianFitter {
         if d >= 0.0 || d.is_nan() {
             return None;
         }
-        let (cu, cv) = (-b / (2.0 * d), -c / (2.0 * d));
-        let log_peak = a - d * (cu * cu + cv * cv);
+        let offset = [b, c].map(|k| -k / (2.0 * d));
+        let log_peak = a - d * (offset[0] * offset[0] + offset[1] * offset[1]);
         let residual = (self.weighted_square - solution.dot(&self.rhs)).max(0.0);
         let peak = log_peak.exp();
         let fit = GaussianFit {
-            centre: [
-                self.origin[0] + cu * self.scale,
-                self.origin[1] + cv * self.scale,
-            ],
+            centre: [0, 1].map(|i| self.origin[i] + offset[i] * self.scale),
             radius: (-2.0 / d).sqrt() * self.scale,
             peak,
             misfit: (residual / self.count as f64 - noise * noise)
@@ -110,7 +104,7 @@ mod tests {
                 let (px, py) = (f64::from(x) + 0.5, f64::from(y) + 0.5);
                 let value = field(px, py);
                 if value > 15.0 {
-                    fitter.add(px, py, value);
+                    fitter.add([px, py], value);
                 }
             }
         }

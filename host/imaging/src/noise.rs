@@ -8,7 +8,7 @@
 //! normal distribution at the cell's mean level (means of many pixels, so its own noise
 //! hardly matters).
 
-use super::cells::CellSums;
+use super::cells::{CellSums, around, f64_sum};
 use super::tuning::{LEVEL_REACH, NOISE_CELL};
 
 /// The standard normal density and cumulative distribution at `t`.
@@ -27,7 +27,7 @@ pub(crate) fn clipped_normal_mean(t: f64) -> f64 {
 /// The standard deviation of `max(0, t + Z)` for a standard normal `Z`.
 fn clipped_normal_spread(t: f64) -> f64 {
     let (density, cdf) = normal(t);
-    let mean = t * cdf + density;
+    let mean = clipped_normal_mean(t);
     ((t * t + 1.0) * cdf + t * density - mean * mean)
         .max(0.0)
         .sqrt()
@@ -79,24 +79,19 @@ impl NoiseMap {
         noise: f64,
         level_per_count: f64,
     ) -> Self {
-        let cells = CellSums::new(raw, width, height, NOISE_CELL);
+        let cells = CellSums::new(raw, width, height, NOISE_CELL, f64_sum);
         let (columns, rows) = (cells.columns, cells.rows);
         let floor = noise * clipped_normal_spread(0.0);
-        let mut spread = Vec::with_capacity(columns * rows);
-        for cy in 0..rows {
-            for cx in 0..columns {
-                let (mut sum, mut count) = (0.0, 0.0);
-                for ny in cy.saturating_sub(LEVEL_REACH)..(cy + LEVEL_REACH + 1).min(rows) {
-                    for nx in cx.saturating_sub(LEVEL_REACH)..(cx + LEVEL_REACH + 1).min(columns) {
-                        sum += cells.sums[ny * columns + nx];
-                        count += cells.counts[ny * columns + nx];
-                    }
-                }
+        let spread = (0..columns * rows)
+            .map(|c| {
+                let (sum, count) = around(c, LEVEL_REACH, columns, rows)
+                    .fold((0.0, 0.0), |(s, n), i| {
+                        (s + cells.sums[i], n + cells.counts[i])
+                    });
                 let mean = sum * level_per_count / count.max(1.0) / noise;
-                let scatter = noise * clipped_normal_spread(level_of_clipped_mean(mean));
-                spread.push(scatter.max(floor) as f32);
-            }
-        }
+                (noise * clipped_normal_spread(level_of_clipped_mean(mean))).max(floor) as f32
+            })
+            .collect();
         Self {
             columns,
             rows,

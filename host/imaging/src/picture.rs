@@ -8,6 +8,7 @@
 
 use optalign_optics::Frame;
 
+use super::cells::around;
 use super::noise::{NoiseMap, clipped_normal_mean};
 use super::tuning::{
     BAND_SHARE, CELL_CLIPPED_SHARE, CELL_OUTLIER, CELLS_PER_SIDE, CLIP_MARGIN, CLIPPED_DARK_SHARE,
@@ -46,12 +47,10 @@ impl Picture {
         let scale = depth.level_per_count as f32;
         let mut light = Vec::with_capacity(raw.len());
         for (y, row) in raw.chunks_exact(width).enumerate() {
-            let background = plane.background_row(y, width);
-            light.extend(
-                row.iter()
-                    .zip(&background)
-                    .map(|(&p, b)| f32::from(p) * scale - b),
-            );
+            let y = y as f64 + 0.5;
+            for (x, &p) in row.iter().enumerate() {
+                light.push(f32::from(p) * scale - plane.level_at(x as f64 + 0.5, y) as f32);
+            }
         }
         remove_column_streaks(&mut light, width, height, noise);
         repair_hot_pixels(&mut light, width, height, noise);
@@ -87,11 +86,6 @@ impl Picture {
     /// Light above the background, row-major.
     pub fn light(&self) -> &[f32] {
         &self.light
-    }
-
-    /// Whether pixel `i` (row-major) is saturated.
-    pub fn is_saturated(&self, i: usize) -> bool {
-        self.saturated[i]
     }
 
     /// The saturation mask, row-major.
@@ -173,7 +167,7 @@ impl Picture {
 /// pixels, more than on the next value below that any pixel holds (the flat top of an
 /// unsaturated beam holds fewer pixels than the ring around it; a camera that writes 12-bit
 /// data shifted into 16-bit words leaves the values between its steps empty).
-pub fn saturation_value(raw: &[u16], full_scale: u16) -> Option<u16> {
+fn saturation_value(raw: &[u16], full_scale: u16) -> Option<u16> {
     let top = raw.iter().copied().max()?;
     let plateau = raw.iter().filter(|&&p| p == top).count();
     let below = raw.iter().copied().filter(|&p| p < top).max();
@@ -202,11 +196,6 @@ impl Depth {
             bin_counts: bin_counts as u16,
             bins: values.div_ceil(bin_counts) as usize,
         }
-    }
-
-    /// Gray levels per bin: the quantisation step of the statistics.
-    fn step(&self) -> f64 {
-        f64::from(self.bin_counts) * self.level_per_count
     }
 }
 
@@ -256,16 +245,9 @@ struct Plane {
 }
 
 impl Plane {
-    /// The background a pixel shows: the surface, or where black clips the noise, the mean
-    /// of the clipped values (a surface sloping below black reads 0 there, not less).
-    fn background_row(&self, y: usize, width: usize) -> Vec<f32> {
-        let y = y as f64 + 0.5;
-        (0..width)
-            .map(|x| self.level_at(x as f64 + 0.5, y) as f32)
-            .collect()
-    }
-
-    /// The background at pixel position (`x`, `y`), as [`Self::background_row`] gives it.
+    /// The background a pixel at position (`x`, `y`) shows: the surface, or where black
+    /// clips the noise, the mean of the clipped values (a surface sloping below black reads
+    /// 0 there, not less).
     fn level_at(&self, x: f64, y: f64) -> f64 {
         let level = self.surface.at(x, y);
         if self.clipped {
@@ -291,9 +273,6 @@ impl Plane {
                     for &p in raw[y * width + x0..y * width + x1].iter().step_by(2) {
                         histogram.add(p);
                     }
-                }
-                if histogram.total == 0 {
-                    continue;
                 }
                 let above_black = histogram.above_black();
                 let black = histogram.counts[0];
@@ -360,19 +339,22 @@ impl Plane {
         let samples = kept_cells().map(|c| f64::from(c.total)).sum::<f64>()
             / kept_cells().count().max(1) as f64;
         let cell_noise = noise / samples.max(1.0).sqrt();
-        let beyond_noise = |spread: f64| {
+        // The robust scatter of the kept cells' levels about a surface, beyond their noise.
+        let misfit_of = |surface: &Surface, keep: &[bool]| {
+            let residual = |c: &Cell| c.level.map(|l| l - surface.at(c.centre[0], c.centre[1]));
+            let spread = robust_spread(kept(&cells, keep).filter_map(residual));
             if spread > MISFIT_SIGNIFICANCE * cell_noise {
                 (spread.powi(2) - cell_noise.powi(2)).sqrt()
             } else {
                 0.0
             }
         };
-        let mut misfit = beyond_noise(scatter(&cells, &plane, &keep));
+        let mut misfit = misfit_of(&plane, &keep);
         // A glow that bends across the frame: a quadratic surface from the plane's cells,
         // when it explains most of what the plane leaves.
         let quadratic = Surface { terms: 6, ..plane };
         let (bowl, bowl_keep) = robust_surface(&cells, quadratic, keep.clone(), FIT_ROUNDS);
-        let bowl_misfit = beyond_noise(scatter(&cells, &bowl, &bowl_keep));
+        let bowl_misfit = misfit_of(&bowl, &bowl_keep);
         if bowl_keep.iter().filter(|k| **k).count() >= MIN_QUADRATIC_CELLS
             && bowl_misfit <= QUADRATIC_GAIN * misfit
         {
@@ -452,11 +434,6 @@ impl Histogram {
         reaching(&self.counts, wanted).unwrap_or(self.counts.len() - 1)
     }
 
-    /// The smallest level with at least `share` of the counts at or below it.
-    fn quantile(&self, share: f64) -> f64 {
-        self.level(self.quantile_bin(share))
-    }
-
     /// The mean without single outliers far above the median (hot pixels): the expected
     /// level of a pixel, clipping at black included.
     fn robust_mean(&self) -> f64 {
@@ -467,8 +444,8 @@ impl Histogram {
         for (bin, &count) in self.counts.iter().enumerate() {
             deviations[bin.abs_diff(median_bin)] += count;
         }
-        let mad =
-            reaching(&deviations, self.total.div_ceil(2)).unwrap_or(0) as f64 * self.depth.step();
+        let bin_levels = f64::from(self.depth.bin_counts) * self.depth.level_per_count;
+        let mad = reaching(&deviations, self.total.div_ceil(2)).unwrap_or(0) as f64 * bin_levels;
         // Half the pixels of a dark level near black read 0, which shrinks the MAD far
         // below the noise: the spread above black keeps the cut out of the noise's tail.
         let spread = (MAD_TO_SIGMA * mad)
@@ -497,7 +474,7 @@ impl Histogram {
             .position(|&(_, p)| p > black + CLIP_MARGIN)?;
         let (z_low, p_low) = NORMAL_POINTS[lower];
         let (z_high, p_high) = *NORMAL_POINTS.get(lower + 2)?;
-        let (low, high) = (self.quantile(p_low), self.quantile(p_high));
+        let [low, high] = [p_low, p_high].map(|p| self.level(self.quantile_bin(p)));
         let noise = (high - low) / (z_high - z_low);
         Some((low - z_low * noise, noise))
     }
@@ -507,9 +484,6 @@ impl Histogram {
     /// standard deviation σ is 0.953 · 2σ/√π. A mean, not a median, because differences of
     /// pixels are whole numbers of counts.
     fn noise_from_differences(&self) -> f64 {
-        if self.total == 0 {
-            return 0.0;
-        }
         let mut keep = (f64::from(self.total) * TRIMMED_KEEP_SHARE).ceil() as u32;
         let (mut sum, mut n) = (0.0, 0.0);
         for (bin, &count) in self.counts.iter().enumerate() {
@@ -539,12 +513,17 @@ pub(crate) fn kept<'a, T>(items: &'a [T], keep: &'a [bool]) -> impl Iterator<Ite
     items
         .iter()
         .zip(keep)
-        .filter(|(_, k)| **k)
-        .map(|(item, _)| item)
+        .filter_map(|(item, &k)| k.then_some(item))
 }
 
 /// The σ of a normal distribution is its median absolute deviation times this.
-pub(super) const MAD_TO_SIGMA: f64 = 1.4826;
+const MAD_TO_SIGMA: f64 = 1.4826;
+
+/// The σ of `residuals` about 0, robustly: 1.4826 times their median absolute value (0
+/// when there are none).
+pub(crate) fn robust_spread(residuals: impl Iterator<Item = f64>) -> f64 {
+    MAD_TO_SIGMA * median(residuals.map(f64::abs).collect()).unwrap_or(0.0)
+}
 
 /// The median of the values (the upper one of an even count), or `None` when there are none.
 pub fn median(values: Vec<f64>) -> Option<f64> {
@@ -558,18 +537,6 @@ fn quantile_of(mut values: Vec<f64>, share: f64) -> Option<f64> {
     }
     let at = ((share * values.len() as f64) as usize).min(values.len() - 1);
     Some(*values.select_nth_unstable_by(at, f64::total_cmp).1)
-}
-
-/// The robust scatter (1.4826 times the median absolute residual) of the kept cells'
-/// levels about `surface`, gray levels.
-fn scatter(cells: &[Cell], surface: &Surface, keep: &[bool]) -> f64 {
-    let residuals = kept(cells, keep)
-        .filter_map(|c| {
-            c.level
-                .map(|l| (l - surface.at(c.centre[0], c.centre[1])).abs())
-        })
-        .collect();
-    MAD_TO_SIGMA * median(residuals).unwrap_or(0.0)
 }
 
 /// A surface with `start`'s terms fitted to the cells from those in `keep`, rejecting and
@@ -592,8 +559,7 @@ fn robust_surface(
                 })
             })
             .collect();
-        let kept_residuals = kept(&residuals, &keep).map(|r| r.abs()).collect();
-        let spread = MAD_TO_SIGMA * median(kept_residuals).unwrap_or(0.0);
+        let spread = robust_spread(kept(&residuals, &keep).copied());
         let limit = CELL_OUTLIER * spread.max(0.5);
         let next: Vec<bool> = residuals.iter().map(|r| r.abs() <= limit).collect();
         if next == keep || next.iter().filter(|k| **k).count() < surface.terms {
@@ -641,28 +607,24 @@ fn remove_column_streaks(light: &mut [f32], width: usize, height: usize, noise: 
     // Each band's column medians, relative to the band's typical column: a streak is a
     // few columns, an offset shared by all of them is left to the background.
     let relative = |first_row: usize| {
-        let mut pixels = vec![0f32; band * width];
-        for y in 0..band {
-            for x in 0..width {
-                pixels[x * band + y] = light[(first_row + y) * width + x];
-            }
-        }
+        // Column by column, each column's `band` pixels in a run.
+        let mut pixels: Vec<f32> = (0..band * width)
+            .map(|i| light[(first_row + i % band) * width + i / band])
+            .collect();
         let mut medians: Vec<f32> = pixels.chunks_exact_mut(band).map(median_f32).collect();
         let typical = median_f32(&mut medians.clone());
         medians.iter_mut().for_each(|m| *m -= typical);
         medians
     };
-    // A streak runs the whole height: the top and bottom bands and two between them all
-    // show it (spots in the top and bottom bands of the same columns leave a dark band
-    // between them).
-    let bands: Vec<Vec<f32>> = [
+    // Two bands between the top and bottom ones too: spots in the top and bottom bands of
+    // the same columns leave a dark band between them.
+    let bands = [
         0,
         (height - band) / 3,
         2 * (height - band) / 3,
         height - band,
     ]
-    .map(relative)
-    .into();
+    .map(relative);
     let offsets: Vec<f32> = (0..width)
         .map(|x| {
             // The smallest offset, taken only when every band agrees on its sign.
@@ -697,10 +659,8 @@ fn remove_column_streaks(light: &mut [f32], width: usize, height: usize, noise: 
     if offsets.iter().all(|&o| o == 0.0) {
         return;
     }
-    for row in light.chunks_exact_mut(width) {
-        for (v, o) in row.iter_mut().zip(&offsets) {
-            *v -= o;
-        }
+    for (v, o) in light.iter_mut().zip(offsets.iter().cycle()) {
+        *v -= o;
     }
 }
 
@@ -714,7 +674,7 @@ pub(crate) fn median_f32(values: &mut [f32]) -> f32 {
 /// eight neighbours (a beam spreads over many pixels) takes their median.
 fn repair_hot_pixels(light: &mut [f32], width: usize, height: usize, noise: f64) {
     let floor = (HOT_NOISES * noise) as f32;
-    let mut around = Vec::with_capacity(8);
+    let mut ring = Vec::with_capacity(8);
     for i in 0..light.len() {
         let v = light[i];
         if v <= floor {
@@ -725,22 +685,17 @@ fn repair_hot_pixels(light: &mut [f32], width: usize, height: usize, noise: f64)
         if i > 0 && i + 1 < light.len() && light[i - 1] >= quick && light[i + 1] >= quick {
             continue;
         }
-        let (x, y) = (i % width, i / width);
-        around.clear();
-        for ny in y.saturating_sub(1)..(y + 2).min(height) {
-            for nx in x.saturating_sub(1)..(x + 2).min(width) {
-                if (nx, ny) != (x, y) {
-                    around.push(light[ny * width + nx]);
-                }
-            }
+        ring.clear();
+        for n in around(i, 1, width, height).filter(|&n| n != i) {
+            ring.push(light[n]);
         }
-        if around.len() < 3 {
+        if ring.len() < 3 {
             continue;
         }
-        around.sort_by(f32::total_cmp);
-        let second = around[around.len() - 2];
+        ring.sort_by(f32::total_cmp);
+        let second = ring[ring.len() - 2];
         if v > HOT_RATIO * second.max(0.0) + floor / 2.0 {
-            light[i] = around[around.len() / 2];
+            light[i] = ring[ring.len() / 2];
         }
     }
 }

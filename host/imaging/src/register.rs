@@ -55,7 +55,7 @@ fn misfits(
     for y in span(centre[1], h) {
         for x in span(centre[0], w) {
             let i = y * w + x;
-            if after.is_saturated(i) {
+            if after.saturated()[i] {
                 continue;
             }
             let point = |s: [f64; 2]| [x as f64 + 0.5 - s[0], y as f64 + 0.5 - s[1]];
@@ -84,14 +84,12 @@ fn sample(picture: &Picture, point: [f64; 2]) -> Option<f64> {
     }
     let (x0, y0) = (x.floor() as usize, y.floor() as usize);
     let (fx, fy) = (x - x0 as f64, y - y0 as f64);
-    let corners = [(x0, y0), (x0 + 1, y0), (x0, y0 + 1), (x0 + 1, y0 + 1)];
-    if corners
-        .iter()
-        .any(|&(cx, cy)| picture.is_saturated(cy * w + cx))
-    {
+    let i = y0 * w + x0;
+    let corners = [i, i + 1, i + w, i + w + 1];
+    if corners.iter().any(|&c| picture.saturated()[c]) {
         return None;
     }
-    let at = |(cx, cy): (usize, usize)| f64::from(picture.light()[cy * w + cx]);
+    let at = |c: usize| f64::from(picture.light()[c]);
     let top = at(corners[0]) * (1.0 - fx) + at(corners[1]) * fx;
     let bottom = at(corners[2]) * (1.0 - fx) + at(corners[3]) * fx;
     Some(top * (1.0 - fy) + bottom * fy)

@@ -10,6 +10,7 @@
 use optalign_optics::Frame;
 
 use super::model::{Vec2, distance};
+use super::see::residue;
 use super::tuning::{
     BACKDROPS_RESIDUE_SHARE, BESIDE_SHARE, CLEAR_RADII, COME_SHARE, HOLE_SHARE, KEPT_SHARE,
     OWN_LIGHT_NOISES,
@@ -68,31 +69,24 @@ impl Backdrops {
     /// that leaves a hole is forgotten).
     pub fn picture(&mut self, place: usize, frame: &Frame) -> Picture {
         let picture = Picture::new(frame);
-        let Some(slot) = self.places.get_mut(place) else {
-            return picture;
-        };
+        let slot = &mut self.places[place];
         let Some((backdrop, strongest)) = &slot.backdrop else {
-            if slot.borrow_tried {
-                return picture;
-            }
             return self.borrow(place, frame, &picture).unwrap_or(picture);
         };
-        match taken_off(backdrop, strongest, frame, &picture) {
-            Some(clean) => clean,
-            None => {
-                *slot = Place::default();
-                picture
-            }
-        }
+        taken_off(backdrop, strongest, frame, &picture).unwrap_or_else(|| {
+            *slot = Place::default();
+            picture
+        })
     }
 
-    /// Gives `place` a copy of another place's backdrop (the latest learned first) that
-    /// holds light beside the beam (its strongest feature has a share of the frame's
-    /// strongest one's light) and leaves no hole in `frame`: all its light shows there.
-    /// Returns `frame` without it, when one was borrowed.
+    /// Gives `place`, once per visit, a copy of another place's backdrop (the latest learned
+    /// first) that holds light beside the beam (its strongest feature has a share of the
+    /// frame's strongest one's light) and leaves no hole in `frame`: all its light shows
+    /// there. Returns `frame` without it, when one was borrowed.
     fn borrow(&mut self, place: usize, frame: &Frame, picture: &Picture) -> Option<Picture> {
-        self.places[place].borrow_tried = true;
-        if self.places.iter().all(|p| p.backdrop.is_none()) {
+        if std::mem::replace(&mut self.places[place].borrow_tried, true)
+            || self.places.iter().all(|p| p.backdrop.is_none())
+        {
             return None;
         }
         let brightest = find_beams(picture).first().map_or(0.0, |b| b.signal);
@@ -111,28 +105,23 @@ impl Backdrops {
 
     /// The places with a backdrop.
     pub fn learned(&self) -> impl Iterator<Item = usize> + '_ {
-        self.places
-            .iter()
-            .enumerate()
-            .filter(|(_, p)| p.backdrop.is_some())
-            .map(|(i, _)| i)
+        (0..self.places.len()).filter(move |&i| self.places[i].backdrop.is_some())
     }
 
     /// The camera arrived at `place`: a throw may be tried there again when it has no
     /// backdrop (the last one may have found the beam merged with other light).
     pub fn arrived(&mut self, place: usize) {
-        if let Some(p) = self.places.get_mut(place) {
-            p.tried = false;
-            p.borrow_tried = false;
-        }
+        let p = &mut self.places[place];
+        p.tried = false;
+        p.borrow_tried = false;
     }
 
     /// A throw is worth making at `place`: it has no backdrop and none was tried since,
     /// and `beams` hold another strong feature beside the beam's `spot`.
     pub fn wanted(&self, place: usize, beams: &[Beam], spot: &Beam) -> bool {
-        self.places
-            .get(place)
-            .is_some_and(|p| p.backdrop.is_none() && !p.tried)
+        let p = &self.places[place];
+        p.backdrop.is_none()
+            && !p.tried
             && beams.iter().any(|b| {
                 distance(b.centre, spot.centre) > 1.0 && b.signal >= BESIDE_SHARE * spot.signal
             })
@@ -148,9 +137,7 @@ impl Backdrops {
         load: Vec2,
         (step, reach): (Vec2, f64),
     ) -> Throw {
-        if let Some(p) = self.places.get_mut(place) {
-            p.tried = true;
-        }
+        self.places[place].tried = true;
         Throw {
             place,
             spot,
@@ -183,10 +170,7 @@ impl Backdrops {
                 .iter()
                 .filter(|c| {
                     c.signal >= COME_SHARE * reference
-                        && !features.iter().any(|f| {
-                            distance(f.centre, c.centre) < f.size()
-                                && c.signal < BACKDROPS_RESIDUE_SHARE * f.signal
-                        })
+                        && !residue(c, &features, BACKDROPS_RESIDUE_SHARE)
                 })
                 .copied()
                 .collect()
@@ -227,20 +211,18 @@ impl Backdrops {
         let Some(backdrop) = backdrop else {
             return Thrown::Failed;
         };
-        let strongest = find_beams(&after_picture.with_light(
+        let Some(strongest) = find_beams(&after_picture.with_light(
             backdrop.light_above(&after_picture),
             after_picture.noise(),
             after_picture.noise_map().clone(),
         ))
         .first()
-        .copied();
-        match (self.places.get_mut(throw.place), strongest) {
-            (Some(p), Some(strongest)) if strongest.signal > 0.0 => {
-                p.backdrop = Some((backdrop, strongest));
-                Thrown::Learned
-            }
-            _ => Thrown::Failed,
-        }
+        .copied()
+        .filter(|s| s.signal > 0.0) else {
+            return Thrown::Failed;
+        };
+        self.places[throw.place].backdrop = Some((backdrop, strongest));
+        Thrown::Learned
     }
 }
 

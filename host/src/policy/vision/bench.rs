@@ -41,9 +41,14 @@ pub fn quantile(p: f64, freedom: usize) -> f64 {
 /// Whether a zero-mean 2-D error of covariance `cov` (px²), its scale estimated with
 /// `freedom` degrees of freedom ([`quantile`]), lies within `tolerance` px with at least
 /// probability `confidence` (bounded by its larger axis).
-pub fn sure_within(cov: Matrix2<f64>, tolerance: f64, confidence: f64, freedom: usize) -> bool {
+fn sure_within(cov: Matrix2<f64>, tolerance: f64, confidence: f64, freedom: usize) -> bool {
     let largest = cov.symmetric_eigenvalues().max();
     largest * quantile(confidence, freedom) <= tolerance * tolerance
+}
+
+/// The covariance of a 2-D position that scatters by `px` per axis, independently, px².
+pub fn isotropic(px: f64) -> Matrix2<f64> {
+    Matrix2::identity() * px * px
 }
 
 /// How many numbers the model holds.
@@ -89,20 +94,17 @@ impl Response {
     /// Nothing known but that the feature is somewhere near the image and the mount
     /// moves it by less than a broad bound ([`PRIOR_OFFSET_PX`], [`PRIOR_GAIN_PX_PER_STEP`]).
     pub fn broad(origin: Vec2) -> Self {
-        let nothing = Affine {
-            offset: [0.0; 2],
-            gain: [[0.0; 2]; 2],
-        };
-        Self::with_prior(origin, nothing, PRIOR_OFFSET_PX, PRIOR_GAIN_PX_PER_STEP)
+        let nothing = Affine::linear([[0.0; 2]; 2]);
+        Self::with_prior(origin, nothing, PRIOR_GAIN_PX_PER_STEP)
     }
 
-    /// A prior centred on `mean` (a nominal response, no dead band), with standard
-    /// deviations `offset_sd` px and `gain_sd` px per step ([`PRIOR_BAND_PX`] for a band).
-    pub fn with_prior(origin: Vec2, mean: Affine, offset_sd: f64, gain_sd: f64) -> Self {
+    /// A prior centred on `mean` (a nominal response, no dead band), with standard deviations
+    /// `gain_sd` px per step for the gain ([`PRIOR_OFFSET_PX`], [`PRIOR_BAND_PX`] for the rest).
+    pub fn with_prior(origin: Vec2, mean: Affine, gain_sd: f64) -> Self {
         let at = mean.predict(origin);
         let [[a, b], [c, d]] = mean.gain;
         let x = Vector::from_column_slice(&[at[0], at[1], a, b, c, d, 0.0, 0.0, 0.0, 0.0]);
-        let (o, g, l) = (offset_sd.powi(-2), gain_sd.powi(-2), PRIOR_BAND_PX.powi(-2));
+        let [o, g, l] = [PRIOR_OFFSET_PX, gain_sd, PRIOR_BAND_PX].map(|sd| sd.powi(-2));
         let information =
             Matrix::from_diagonal(&Vector::from_column_slice(&[o, o, g, g, g, g, l, l, l, l]));
         Self {
@@ -127,41 +129,32 @@ impl Response {
         self.projected += ht_w * Vector2::new(point.image[0], point.image[1]);
     }
 
-    /// The mean and covariance of the ten numbers, `None` when the information is not
-    /// positive definite (cannot happen with a prior, short of overflow).
-    fn state(&self) -> Option<(Vector, Matrix)> {
-        let cholesky = self.information.cholesky()?;
-        Some((cholesky.solve(&self.projected), cholesky.inverse()))
-    }
-
-    /// The mean of the ten numbers alone ([`Self::state`] without the covariance).
+    /// The mean of the ten numbers, `None` when the information is not positive definite
+    /// (cannot happen with a prior, short of overflow).
     fn estimate(&self) -> Option<Vector> {
         Some(self.information.cholesky()?.solve(&self.projected))
     }
 
-    /// The map of the numbers `x` for commands reached with the axes last moving in `dir`.
-    fn map_of(&self, x: &Vector, dir: Vec2) -> Affine {
-        let [[a, b], [c, d]] = [[x[2], x[3]], [x[4], x[5]]];
-        let [o0, o1] = self.origin;
-        let band = [0, 1].map(|row| dir[0] * x[6 + row] + dir[1] * x[8 + row]);
-        Affine {
-            offset: [
-                x[0] - a * o0 - b * o1 + band[0],
-                x[1] - c * o0 - d * o1 + band[1],
-            ],
-            gain: [[a, b], [c, d]],
-        }
-    }
-
     /// The most likely map for commands reached with the axes last moving in `dir`.
     pub fn mean(&self, dir: Vec2) -> Option<Affine> {
-        Some(self.map_of(&self.estimate()?, dir))
+        self.means().map(|mean| mean(dir))
     }
 
     /// [`Self::mean`] for any direction, the numbers solved for once.
-    pub fn means(&self) -> Option<impl Fn(Vec2) -> Affine + '_> {
+    fn means(&self) -> Option<impl Fn(Vec2) -> Affine + '_> {
         let x = self.estimate()?;
-        Some(move |dir| self.map_of(&x, dir))
+        let [[a, b], [c, d]] = [[x[2], x[3]], [x[4], x[5]]];
+        let [o0, o1] = self.origin;
+        Some(move |dir: Vec2| {
+            let band = [0, 1].map(|row| dir[0] * x[6 + row] + dir[1] * x[8 + row]);
+            Affine {
+                offset: [
+                    x[0] - a * o0 - b * o1 + band[0],
+                    x[1] - c * o0 - d * o1 + band[1],
+                ],
+                gain: [[a, b], [c, d]],
+            }
+        })
     }
 
     /// The most likely response (px per step) and the shift each axis's dead band puts on
@@ -174,8 +167,9 @@ impl Response {
     /// Where the feature shows for `command` reached with the axes last moving in `dir`,
     /// and the covariance of that place (px²) from what the model does not know (the
     /// detector's scatter not included).
-    pub fn predict(&self, command: Vec2, dir: Vec2) -> Option<(Vec2, Matrix2<f64>)> {
-        let (x, p) = self.state()?;
+    fn predict(&self, command: Vec2, dir: Vec2) -> Option<(Vec2, Matrix2<f64>)> {
+        let cholesky = self.information.cholesky()?;
+        let (x, p) = (cholesky.solve(&self.projected), cholesky.inverse());
         let h = observation(self.relative(command), dir);
         let mean = h * x;
         Some(([mean[0], mean[1]], h * p * h.transpose()))
@@ -183,7 +177,7 @@ impl Response {
 
     /// The squared Mahalanobis distance of a sighting from the model's prediction, with
     /// the sighting's own covariance `noise` added to the prediction's.
-    pub fn surprise(&self, point: Point, noise: Matrix2<f64>) -> Option<f64> {
+    fn surprise(&self, point: Point, noise: Matrix2<f64>) -> Option<f64> {
         let (mean, cov) = self.predict(point.command, point.dir)?;
         let miss = Vector2::new(point.image[0] - mean[0], point.image[1] - mean[1]);
         let inverse = (cov + noise).try_inverse()?;
@@ -199,10 +193,10 @@ impl Response {
 }
 
 /// The model of `points` each with an isotropic scatter of `noise` px.
-pub fn model_of<'a>(points: impl Iterator<Item = &'a Point> + Clone, noise: f64) -> Response {
-    let n = points.clone().count().max(1) as f64;
-    let origin = [0, 1].map(|a| points.clone().map(|p| p.command[a]).sum::<f64>() / n);
-    let r = Matrix2::identity() * noise * noise;
+pub fn model_of(points: &[Point], noise: f64) -> Response {
+    let n = points.len().max(1) as f64;
+    let origin = [0, 1].map(|a| points.iter().map(|p| p.command[a]).sum::<f64>() / n);
+    let r = isotropic(noise);
     let mut model = Response::broad(origin);
     for point in points {
         model.add(*point, r);
@@ -245,28 +239,25 @@ fn core(points: &[Point], noise: f64, min_keep: usize) -> Option<Response> {
                     .filter(|i| mask & (1 << i) != 0)
                     .map(|i| points[i])
                     .collect();
-                let model = model_of(subset.iter(), noise);
+                let model = model_of(&subset, noise);
                 (squares(&model, &subset), model)
             })
             .min_by(|a, b| a.0.total_cmp(&b.0))
             .map(|(_, model)| model);
     }
     let mut subset = points.to_vec();
-    let mut model = model_of(subset.iter(), noise);
+    let mut model = model_of(&subset, noise);
     while subset.len() > keep {
-        let misses: Vec<f64> = {
+        let worst = {
             let mean = model.means()?;
-            subset
-                .iter()
-                .map(|p| {
-                    let [dx, dy] = miss(&mean(p.dir), p);
-                    dx.hypot(dy)
-                })
-                .collect()
+            let misses = subset.iter().map(|p| {
+                let [dx, dy] = miss(&mean(p.dir), p);
+                dx.hypot(dy)
+            });
+            misses.enumerate().max_by(|a, b| a.1.total_cmp(&b.1))?.0
         };
-        let worst = (0..subset.len()).max_by(|&a, &b| misses[a].total_cmp(&misses[b]))?;
         subset.remove(worst);
-        model = model_of(subset.iter(), noise);
+        model = model_of(&subset, noise);
     }
     Some(model)
 }
@@ -279,12 +270,12 @@ fn core(points: &[Point], noise: f64, min_keep: usize) -> Option<Response> {
 /// foreign beam) widens the test: first from the median of the innovations, then from the
 /// residuals of the sightings kept.
 pub fn robust_fit(points: &[Point], noise: f64, min_keep: usize) -> Option<Fit> {
-    let full = model_of(points.iter(), noise);
+    let full = model_of(points, noise);
     let Some(core) = core(points, noise, min_keep) else {
         let widening = residual_widening(&full, points, noise);
-        return Some(Fit::new(full, points, vec![true; points.len()], widening));
+        return Some(Fit::new(full, points.to_vec(), widening));
     };
-    let r = Matrix2::identity() * noise * noise;
+    let r = isotropic(noise);
     let surprises: Vec<f64> = points
         .iter()
         .map(|p| core.surprise(*p, r).unwrap_or(0.0))
@@ -295,43 +286,32 @@ pub fn robust_fit(points: &[Point], noise: f64, min_keep: usize) -> Option<Fit> 
     // its own sightings closer than a new one, so the estimate is then taken again from
     // the residuals of the sightings the test kept, until it no longer grows.
     let mut widening = (sorted[sorted.len() / 2] / CHI2_MEDIAN).max(1.0);
-    for _ in 0..WIDENING_ROUNDS {
+    let kept_at = |widening: f64| -> Vec<Point> {
         let gate = chi2_quantile(GATE_CONFIDENCE) * widening;
-        let kept: Vec<bool> = surprises.iter().map(|d2| *d2 <= gate).collect();
-        if kept.iter().filter(|k| **k).count() < min_keep {
+        let kept = points.iter().zip(&surprises).filter(|(_, d2)| **d2 <= gate);
+        kept.map(|(p, _)| *p).collect()
+    };
+    for _ in 0..WIDENING_ROUNDS {
+        let kept = kept_at(widening);
+        if kept.len() < min_keep {
             let widening = widening.max(residual_widening(&full, points, noise));
-            return Some(Fit::new(full, points, vec![true; points.len()], widening));
+            return Some(Fit::new(full, points.to_vec(), widening));
         }
-        let subset: Vec<Point> = points
-            .iter()
-            .zip(&kept)
-            .filter(|(_, k)| **k)
-            .map(|(p, _)| *p)
-            .collect();
-        let response = model_of(subset.iter(), noise);
-        let refreshed = residual_widening(&response, &subset, noise);
+        let response = model_of(&kept, noise);
+        let refreshed = residual_widening(&response, &kept, noise);
         if refreshed <= widening * WIDENING_SETTLED {
-            return Some(Fit::new(response, points, kept, widening.max(refreshed)));
+            return Some(Fit::new(response, kept, widening.max(refreshed)));
         }
         widening = refreshed;
     }
-    let gate = chi2_quantile(GATE_CONFIDENCE) * widening;
-    let kept: Vec<bool> = surprises.iter().map(|d2| *d2 <= gate).collect();
-    let response = model_of(
-        points
-            .iter()
-            .zip(&kept)
-            .filter(|(_, k)| **k)
-            .map(|(p, _)| p),
-        noise,
-    );
-    Some(Fit::new(response, points, kept, widening))
+    let kept = kept_at(widening);
+    Some(Fit::new(model_of(&kept, noise), kept, widening))
 }
 
 /// How many times the variance `noise`² the sightings `points` scatter by about `model`
 /// fitted to all of them (at least 1): the residual variance over the degrees of freedom the
 /// numbers fitted leave (the unbiased estimate of least squares), 1 while there are none.
-pub fn residual_widening(model: &Response, points: &[Point], noise: f64) -> f64 {
+fn residual_widening(model: &Response, points: &[Point], noise: f64) -> f64 {
     let freedom = residual_freedom(points);
     if freedom == 0 {
         return 1.0;
@@ -352,24 +332,16 @@ pub fn residual_freedom(points: &[Point]) -> usize {
 #[derive(Clone, Debug)]
 pub struct Fit {
     pub response: Response,
-    /// Which sightings it kept.
-    pub kept: Vec<bool>,
+    /// The sightings it kept.
+    pub kept: Vec<Point>,
     /// How many times the detector's variance the sightings scatter by (at least 1).
-    pub widening: f64,
-    /// The degrees of freedom the sightings kept leave ([`residual_freedom`]).
-    freedom: usize,
+    widening: f64,
 }
 
 impl Fit {
-    fn new(response: Response, points: &[Point], kept: Vec<bool>, widening: f64) -> Self {
-        let kept_points: Vec<Point> = points
-            .iter()
-            .zip(&kept)
-            .filter_map(|(p, k)| k.then_some(*p))
-            .collect();
+    fn new(response: Response, kept: Vec<Point>, widening: f64) -> Self {
         Self {
             response,
-            freedom: residual_freedom(&kept_points),
             kept,
             widening,
         }
@@ -378,7 +350,7 @@ impl Fit {
     /// Whether a new sighting passes the chi-square test with a scatter of `noise` px,
     /// widened as the kept sightings showed.
     pub fn believes(&self, point: Point, noise: f64) -> bool {
-        let r = Matrix2::identity() * noise * noise * self.widening;
+        let r = isotropic(noise) * self.widening;
         self.response.believes(point, r)
     }
 
@@ -388,7 +360,7 @@ impl Fit {
     /// and that scatter's share beyond `noise` (the bench's own: a screw's pitch error,
     /// hysteresis, which a new command meets afresh and no number of sightings averages
     /// away).
-    pub fn error_at(&self, command: Vec2, dir: Vec2, noise: f64) -> Option<Matrix2<f64>> {
+    fn error_at(&self, command: Vec2, dir: Vec2, noise: f64) -> Option<Matrix2<f64>> {
         let (_, cov) = self.response.predict(command, dir)?;
         let bench = (self.widening - 1.0) * noise * noise;
         Some(cov * self.widening + Matrix2::identity() * bench)
@@ -407,7 +379,11 @@ impl Fit {
         tolerance: f64,
         confidence: f64,
     ) -> bool {
-        let freedom = if self.widening > 1.0 { self.freedom } else { 0 };
+        let freedom = if self.widening > 1.0 {
+            residual_freedom(&self.kept)
+        } else {
+            0
+        };
         self.error_at(command, dir, noise)
             .is_some_and(|cov| sure_within(cov, tolerance, confidence, freedom))
     }
@@ -503,18 +479,13 @@ mod tests {
             })
             .collect();
         let fit = robust_fit(&points, 0.5, 4).unwrap();
-        assert!(fit.kept.iter().all(|k| *k), "{:?}", fit.kept);
+        assert_eq!(fit.kept, points);
         assert!(fit.widening > 1.0, "{}", fit.widening);
         // Another beam 60 px off taken for this one.
         points[5].image[0] += 60.0;
         let fit = robust_fit(&points, 0.5, 4).unwrap();
-        assert_eq!(
-            fit.kept.iter().filter(|k| !**k).count(),
-            1,
-            "{:?}",
-            fit.kept
-        );
-        assert!(!fit.kept[5]);
+        assert_eq!(fit.kept.len(), 15, "{:?}", fit.kept);
+        assert!(!fit.kept.contains(&points[5]));
         let fitted = fit.response.mean(STILL).unwrap();
         assert!((fitted.gain[0][0] - 0.05).abs() < 0.005, "{fitted:?}");
     }
@@ -568,7 +539,7 @@ mod tests {
             offset: [0.0; 2],
             gain: truth().gain,
         };
-        let mut model = Response::with_prior([0.0, 0.0], nominal, PRIOR_OFFSET_PX, 0.002);
+        let mut model = Response::with_prior([0.0, 0.0], nominal, 0.002);
         model.add(at([0.0, 0.0], truth().predict([0.0, 0.0])), noise(1.0));
         let (mean, cov) = model.predict([500.0, -300.0], STILL).unwrap();
         let want = truth().predict([500.0, -300.0]);

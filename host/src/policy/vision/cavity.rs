@@ -9,7 +9,7 @@
 use optalign_optics::Frame;
 
 use super::model::{Sighting, Tracker, Vec2, distance, rings};
-use super::see::{Seen, View, alike, motion_in, stationary_pairs};
+use super::see::{Seen, View, alike, motion_in};
 use super::sight::{Scales, sight};
 use super::tuning::{
     CAVITY_APART_RADII, CAVITY_CAUTIOUS_SHARE, CAVITY_MATCH_RADII, CAVITY_PROBE_GROWTH,
@@ -20,10 +20,9 @@ use super::tuning::{
 use crate::imaging::{core_centre, core_radius, nearest, registered_changes_sized, scene_shift};
 use crate::task::{Action, CavityLimits};
 
-/// What the last action was for.
+/// What the last action was for (a probe before the first: every decision sends one).
 #[derive(Clone, Copy, Debug, PartialEq)]
 enum Step {
-    Start,
     Probe,
     /// A point near the target; the prediction made for it.
     Check(Option<Vec2>),
@@ -43,24 +42,21 @@ pub struct CavityAgent {
     /// Whether the last check found the secondary at all.
     last_check_seen: bool,
     checks: usize,
-    spans: Vec2,
 }
 
 impl CavityAgent {
     pub fn new(limits: &CavityLimits) -> Self {
         let range = limits.ranges.map(|r| [f64::from(r.min), f64::from(r.max)]);
-        let spans = range.map(|r| r[1] - r[0]);
         Self {
-            tracker: Tracker::new(spans.map(|s| CAVITY_CAUTIOUS_SHARE * s), range),
+            tracker: Tracker::new(range.map(|r| CAVITY_CAUTIOUS_SHARE * (r[1] - r[0])), range),
             command: [0.0; 2],
             before: [0.0; 2],
             previous: None,
             primary: None,
             scales: Scales::default(),
-            last: Step::Start,
+            last: Step::Probe,
             last_check_seen: false,
             checks: 0,
-            spans,
         }
     }
 
@@ -79,10 +75,7 @@ impl CavityAgent {
         let Some(_) = self.tracker.model() else {
             let u = if remaining <= 1 {
                 self.command
-            } else if self.tracker.clean.is_empty()
-                && self.tracker.partial.is_empty()
-                && !self.tracker.missing.is_empty()
-            {
+            } else if self.tracker.latest().is_none() && !self.tracker.missing.is_empty() {
                 self.search()
             } else {
                 self.tracker.next_probe([0.0, 0.0])
@@ -112,16 +105,11 @@ impl CavityAgent {
         let clear = HIDDEN_RADII * primary_radius + CHECK_CLEARANCE_RADII * radius;
         let sides = [[1.0, 0.0], [0.0, 1.0], [-1.0, 0.0], [0.0, -1.0]];
         let point = |side: Vec2| [target[0] + clear * side[0], target[1] + clear * side[1]];
+        let solve = |side: Vec2| self.tracker.command_for(point(side), self.command);
         let side = sides[self.checks % sides.len()];
-        let mut u = self
-            .tracker
-            .command_for(point(side), self.command)
-            .unwrap_or(aim);
+        let mut u = solve(side).unwrap_or(aim);
         if self.tracker.clamp(u) != u {
-            u = self
-                .tracker
-                .command_for(point([-side[0], -side[1]]), self.command)
-                .unwrap_or(aim);
+            u = solve([-side[0], -side[1]]).unwrap_or(aim);
         }
         self.checks += 1;
         let predicted = self.tracker.predict(u);
@@ -134,7 +122,6 @@ impl CavityAgent {
     pub fn claims(&self, done: bool) -> serde_json::Value {
         let phase = match (done, self.last) {
             (true, _) => "secondary to the primary, done",
-            (_, Step::Start) => "start",
             (_, Step::Probe) => "probe",
             (_, Step::Check(_)) => "check beside the primary",
         };
@@ -156,7 +143,8 @@ impl CavityAgent {
     /// rings assumed shows the secondary only in a patch of commands smaller than their
     /// spacing, anywhere in the range, not only near the start.
     fn search(&self) -> Vec2 {
-        let step = self.spans.map(|s| CAVITY_SEARCH_SHARE * s);
+        let spans = self.tracker.range.map(|r| r[1] - r[0]);
+        let step = spans.map(|s| CAVITY_SEARCH_SHARE * s);
         let untried = |u: Vec2, spacing: Vec2| {
             !self
                 .tracker
@@ -178,22 +166,18 @@ impl CavityAgent {
                 let last = (hi / half[axis]).ceil() as i64;
                 first..=last
             };
-            let mut points: Vec<([i64; 2], Vec2)> = indices(0)
+            // Each point, and whether it is an edge midpoint (an index even).
+            let mut points: Vec<(bool, Vec2)> = indices(0)
                 .flat_map(|i| indices(1).map(move |j| [i, j]))
                 .filter(|[i, j]| i % 2 != 0 || j % 2 != 0)
                 .map(|[i, j]| {
                     let u = [i as f64 * half[0], j as f64 * half[1]];
-                    ([i, j], self.tracker.clamp(u))
+                    (i % 2 == 0 || j % 2 == 0, self.tracker.clamp(u))
                 })
                 .collect();
             let far = |u: Vec2| (u[0] / step[0]).hypot(u[1] / step[1]);
             // Cell centres (both indices odd) first, then edge midpoints; nearest first.
-            points.sort_by(|(a, u), (b, v)| {
-                let on_edge = |[i, j]: [i64; 2]| i % 2 == 0 || j % 2 == 0;
-                on_edge(*a)
-                    .cmp(&on_edge(*b))
-                    .then(far(*u).total_cmp(&far(*v)))
-            });
+            points.sort_by(|(a, u), (b, v)| a.cmp(b).then(far(*u).total_cmp(&far(*v))));
             if let Some((_, u)) = points.into_iter().find(|&(_, u)| untried(u, half)) {
                 return u;
             }
@@ -208,11 +192,7 @@ impl CavityAgent {
         let Some(before) = self.previous.take() else {
             return false;
         };
-        if self.last == Step::Start {
-            return false;
-        }
-        let pairs = stationary_pairs(&before.beams, &view.beams, self.scales.steady());
-        self.scales.learn_steady(&pairs, &before.beams, &view.beams);
+        self.scales.learn_steady(&before, view);
         let expected = self.tracker.predict(self.command);
         // The primary carries its rings, halo and ghosts: where it jittered, they went too.
         let shift = nearest(&before.beams, target)
@@ -224,14 +204,8 @@ impl CavityAgent {
         // Looked for at its own size: a faint secondary in heavy noise stands out only
         // averaged over its size.
         let changes = registered_changes_sized(&before.picture, &view.picture, shift, radius);
-        let moved = motion_in(
-            &changes,
-            &before,
-            view,
-            self.scales.steady(),
-            expected,
-            None,
-        );
+        let steady = self.scales.steady();
+        let moved = motion_in(&changes, &before, view, steady, expected, None);
         let hidden = HIDDEN_RADII * primary_radius;
         // The secondary shows outside the primary's footprint, or where the change is clear
         // of the primary's core (what the core covers, a saturated core above all, does not
@@ -252,13 +226,13 @@ impl CavityAgent {
         let vanished = moved.from.filter(|s| {
             outside(s) && like_secondary(s) && appeared.is_none_or(|a| alike(&a.change, &s.change))
         });
+        let spans = self.tracker.range.map(|r| r[1] - r[0]);
+        let [lo, hi] = CAVITY_PROBE_SHARES.map(|share| share * spans[0].min(spans[1]));
         if let (Some(a), Some(v)) = (appeared, vanished)
             && distance(a.beam.centre, v.beam.centre)
                 <= RESOLVED_RADII * a.beam.size().max(v.beam.size())
         {
             // Moved too little to tell where it went: a longer probe next time.
-            let [lo, hi] =
-                [0, 1].map(|i| CAVITY_PROBE_SHARES[i] * self.spans[0].min(self.spans[1]));
             let probe = self
                 .tracker
                 .probe
@@ -274,28 +248,18 @@ impl CavityAgent {
             if distance(a.change.centre, v.change.centre)
                 > CAVITY_APART_RADII * a.change.size().max(v.change.size()));
         let judge = |seen: &Seen, view: &View| {
-            let own = || {
-                if seen.whole {
-                    sight(&seen.beam, view, &self.scales, SECONDARY, other)
-                } else {
-                    Sighting::Partial(seen.beam.centre)
-                }
-            };
-            if !apart {
-                return own();
-            }
-            match sight(&seen.change, view, &self.scales, SECONDARY, other) {
-                Sighting::Partial(_) => own(),
-                change => change,
+            let change = apart.then(|| sight(&seen.change, view, &self.scales, SECONDARY, other));
+            match change {
+                Some(change @ (Sighting::Clean(_) | Sighting::Fitted(_))) => change,
+                _ if seen.whole => sight(&seen.beam, view, &self.scales, SECONDARY, other),
+                _ => Sighting::Partial(seen.beam.centre),
             }
         };
         let seen_to = appeared.map(|s| judge(&s, view));
         let seen_from = vanished.map(|s| judge(&s, &before));
         // A check is judged before it joins the model: does the model believe it?
-        let believed = match seen_to {
-            Some(Sighting::Clean(centre)) => self.tracker.believes(self.command, centre),
-            _ => false,
-        };
+        let believed =
+            matches!(seen_to, Some(Sighting::Clean(c)) if self.tracker.believes(self.command, c));
         let untried = !self.tracker.tried_within(self.before, SAME_STEP);
         self.tracker.file(self.command, seen_to);
         if let (true, Some(v)) = (untried, seen_from) {
@@ -307,7 +271,13 @@ impl CavityAgent {
             && !a.beam.clipped
         {
             self.scales.learn_size(SECONDARY, a.change.size());
-            self.size_probe(a.change.size(), v.beam.centre, a.beam.centre);
+            // Later probes sized from the response this one showed, while there is no map.
+            let step = distance(self.before, self.command);
+            if !(step < SAME_STEP || self.tracker.model().is_some()) {
+                let response = distance(v.beam.centre, a.beam.centre) / step;
+                let length = CAVITY_PROBE_RADII * a.change.size() / response.max(1e-9);
+                self.tracker.set_probe([length.clamp(lo, hi); 2]);
+            }
         }
         self.tracker.estimate_band();
         let Step::Check(predicted) = self.last else {
@@ -315,19 +285,6 @@ impl CavityAgent {
         };
         self.last_check_seen = seen_to.and_then(Sighting::fit_centre).is_some();
         predicted.is_some() && believed
-    }
-
-    /// Sizes later probes from the response one probe showed (the secondary moved from
-    /// `vanished` to `appeared`).
-    fn size_probe(&mut self, radius: f64, vanished: Vec2, appeared: Vec2) {
-        let step = distance(self.before, self.command);
-        if step < SAME_STEP || self.tracker.model().is_some() {
-            return;
-        }
-        let response = distance(vanished, appeared) / step;
-        let [lo, hi] = [0, 1].map(|i| CAVITY_PROBE_SHARES[i] * self.spans[0].min(self.spans[1]));
-        let length = (CAVITY_PROBE_RADII * radius / response.max(1e-9)).clamp(lo, hi);
-        self.tracker.set_probe([length, length]);
     }
 
     fn send(&mut self, u: Vec2, step: Step, done: bool) -> Action {

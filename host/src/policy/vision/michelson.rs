@@ -10,7 +10,7 @@
 use optalign_optics::Frame;
 
 use super::model::{Sighting, Tracker, Vec2, column_norm, distance};
-use super::see::{Motion, Seen, View, motion, stationary_pairs};
+use super::see::{Seen, View, motion, stationary_pairs};
 use super::sight::{Scales, sight};
 use super::tuning::{
     BORDER_RADII, CHECK_APART_RADII, DONE_CONFIDENCE, GRID_VIEW_SHARE, IN_VIEW_RADII,
@@ -71,8 +71,8 @@ pub struct MichelsonAgent {
     refuted: [bool; 2],
     /// What the images taught about this bench: beam sizes, jitter.
     scales: Scales,
-    /// Command span per axis, steps.
-    spans: [f64; 4],
+    /// The shorter command span of each mirror's two axes, steps.
+    spans: [f64; 2],
     /// A beam the last search showed, not yet told whose.
     appeared: Option<Beam>,
     /// Where the features that stayed put through the last probe are, px.
@@ -81,20 +81,15 @@ pub struct MichelsonAgent {
 
 impl MichelsonAgent {
     pub fn new(limits: &MichelsonLimits) -> Self {
-        let range = |a: usize| {
-            [
-                f64::from(limits.ranges[a].min),
-                f64::from(limits.ranges[a].max),
-            ]
-        };
-        let spans = [0, 1, 2, 3].map(|a| range(a)[1] - range(a)[0]);
+        let range = limits.ranges.map(|r| [f64::from(r.min), f64::from(r.max)]);
+        let spans = range.map(|r| r[1] - r[0]);
         Self {
             trackers: [0, 2].map(|a| {
                 let probe = [
                     MICHELSON_CAUTIOUS_SHARE * spans[a],
                     MICHELSON_CAUTIOUS_SHARE * spans[a + 1],
                 ];
-                let mut tracker = Tracker::new(probe, [range(a), range(a + 1)]);
+                let mut tracker = Tracker::new(probe, [range[a], range[a + 1]]);
                 tracker.min_spread = MIN_SPREAD_SHARE * probe[0].min(probe[1]);
                 tracker
             }),
@@ -106,7 +101,7 @@ impl MichelsonAgent {
             tolerance: limits.success_error_px,
             refuted: [false; 2],
             scales: Scales::default(),
-            spans,
+            spans: [0, 2].map(|a| spans[a].min(spans[a + 1])),
             appeared: None,
             stayed: Vec::new(),
         }
@@ -125,19 +120,15 @@ impl MichelsonAgent {
             tracker.noise = noise;
         }
         let confirmed = !rejected && self.observe(&view);
-        let centre = view.centre();
-        let size = view.size();
+        let (centre, size) = (view.centre(), view.size());
         self.previous = Some(view);
         if remaining <= 1 {
             return self.finish(centre);
         }
         let unmapped = |k: &usize| self.trackers[*k].model().is_none() || self.refuted[*k];
-        let sighted = |k: &usize| {
-            !self.trackers[*k].clean.is_empty() || !self.trackers[*k].partial.is_empty()
-        };
         let next = (0..2)
             .filter(unmapped)
-            .find(sighted)
+            .find(|&k| self.sighted(k))
             .or_else(|| (0..2).find(unmapped));
         if let Some(k) = next {
             if remaining <= 3 {
@@ -148,9 +139,9 @@ impl MichelsonAgent {
             }
             self.scale_probe(k, size);
             let margin = IN_VIEW_RADII * self.scales.radius(k);
-            let target = self.probe_target(k, size);
+            let target = self.probe_target(k, centre, size);
             let u = self.trackers[k].next_probe_towards([0.0, 0.0], size, target, margin);
-            if self.blind(k) && self.blind(1 - k) && !self.trackers[k].is_fresh() {
+            if !self.sighted(k) && !self.sighted(1 - k) && !self.trackers[k].is_fresh() {
                 return self.search(k, u);
             }
             return self.probe(k, u, centre);
@@ -176,9 +167,7 @@ impl MichelsonAgent {
             (_, Step::Search { .. }) => "search both mirrors".to_string(),
             (_, Step::Attribute { k, .. }) => format!("tell whether the beam seen is {}", k + 1),
         };
-        let mirrors: Vec<_> = (0..2)
-            .map(|k| self.trackers[k].claims(self.mirror(k)))
-            .collect();
+        let mirrors = [0, 1].map(|k| self.trackers[k].claims(self.mirror(k)));
         serde_json::json!({
             "phase": phase,
             "mirrors": mirrors,
@@ -193,23 +182,17 @@ impl MichelsonAgent {
         };
         self.stayed.clear();
         match self.last {
-            Step::Start => false,
+            Step::Start => {}
             Step::Probe { k, parked } => {
                 if self.observe_probe(&before, view, k, parked) {
                     self.refuted[k] = false;
                 }
-                false
             }
-            Step::Check { predicted } => self.observe_check(&before, view, predicted),
-            Step::Search { k } => {
-                self.observe_search(&before, view, k);
-                false
-            }
-            Step::Attribute { k, appeared } => {
-                self.observe_attribute(&before, view, k, &appeared);
-                false
-            }
+            Step::Check { predicted } => return self.observe_check(&before, view, predicted),
+            Step::Search { k } => self.observe_search(&before, view, k),
+            Step::Attribute { k, appeared } => self.observe_attribute(&before, view, k, &appeared),
         }
+        false
     }
 
     /// Learns from a move of mirror `k` alone (the other parked, when `parked`); true when
@@ -222,51 +205,36 @@ impl MichelsonAgent {
         parked: Option<(Vec2, Vec2)>,
     ) -> bool {
         let j = 1 - k;
-        let pairs = stationary_pairs(&before.beams, &after.beams, self.scales.steady());
-        self.scales
-            .learn_steady(&pairs, &before.beams, &after.beams);
+        let pairs = self.scales.learn_steady(before, after);
         self.stayed = pairs.iter().map(|&(_, i)| after.beams[i].centre).collect();
         let (old, new) = (self.before[k], self.mirror(k));
         let expected = self.trackers[k].predict(new);
         let moved = motion(before, after, self.scales.steady(), expected, parked);
         let untried = !self.trackers[k].tried_within(old, SAME_STEP);
-        let other_now = parked
-            .map(|(_, to)| to)
-            .or_else(|| self.trackers[j].predict(self.mirror(j)));
-        let other_then = parked
-            .map(|(from, _)| from)
-            .or_else(|| self.trackers[j].predict(self.before[j]));
         let radius = self.scales.radius(j);
-        let judge = |seen: Seen, view: &View, other: Option<Vec2>| {
-            let sighting = sight(
-                &seen.beam,
-                view,
-                &self.scales,
-                k,
-                other.map(|p| (p, radius)),
-            );
-            match sighting {
+        // The other beam where it was parked, else where its map puts it (mirror `j` at `v`).
+        let judge = |seen: Option<Seen>, view: &View, parked: Option<Vec2>, v: Vec2| {
+            let seen = seen?;
+            let other = parked.or_else(|| self.trackers[j].predict(v));
+            let other = other.map(|p| (p, radius));
+            Some(match sight(&seen.beam, view, &self.scales, k, other) {
                 Sighting::Clean(c) | Sighting::Fitted(c) if !seen.whole => Sighting::Partial(c),
                 other => other,
-            }
+            })
         };
-        let seen_to = moved.to.map(|s| judge(s, after, other_now));
-        let seen_from = moved.from.map(|s| judge(s, before, other_then));
-        self.adapt_probe(k, [seen_from, seen_to], &moved, distance(old, new), after);
+        let seen_to = judge(moved.to, after, parked.map(|p| p.1), self.mirror(j));
+        let seen_from = judge(moved.from, before, parked.map(|p| p.0), self.before[j]);
+        self.adapt_probe(k, [seen_from, seen_to], distance(old, new), after);
         self.trackers[k].file(new, seen_to);
         if untried && let Some(s) = seen_from {
             self.trackers[k].file_before_move(old, s);
         }
-        if let Some(Sighting::Clean(_)) = seen_to
-            && let Some(s) = moved.to
-            && !s.beam.clipped
-        {
+        // Clean means not cut by the border (`sight`).
+        if let (Some(Sighting::Clean(_)), Some(s)) = (seen_to, moved.to) {
             self.scales.learn_shape(k, &s.beam, after);
         }
         // The parked beam, found near where its map sent it.
-        if let Some((_, to)) = parked
-            && let Some(c) = self.find_near(after, j, to, &[])
-        {
+        if let Some(c) = parked.and_then(|(_, to)| self.find_near(after, j, to, &[])) {
             let u = self.mirror(j);
             self.trackers[j].add_clean(u, c);
         }
@@ -278,18 +246,11 @@ impl MichelsonAgent {
     /// gives the response and with it the command for a useful move; a beam that did not
     /// move calls for a longer probe, one that left the image for a shorter one; while the
     /// beam shows only partly or not at all, the probes search in big steps.
-    fn adapt_probe(
-        &mut self,
-        k: usize,
-        seen: [Option<Sighting>; 2],
-        motion: &Motion,
-        step: f64,
-        after: &View,
-    ) {
+    fn adapt_probe(&mut self, k: usize, seen: [Option<Sighting>; 2], step: f64, after: &View) {
         if step < SAME_STEP {
             return;
         }
-        let span = self.spans[2 * k].min(self.spans[2 * k + 1]);
+        let span = self.spans[k];
         let [lo, hi] = MICHELSON_PROBE_SHARES.map(|share| share * span);
         let probe = self.trackers[k].probe;
         let scaled = |factor: f64| probe.map(|p| (p * factor).clamp(lo, hi));
@@ -307,14 +268,13 @@ impl MichelsonAgent {
                     scaled(MICHELSON_PROBE_GROWTH)
                 }
             }
-            [_, Some(Sighting::Clean(_) | Sighting::Fitted(_))] => probe,
             [Some(Sighting::Clean(_) | Sighting::Fitted(_)), None] => {
                 scaled(1.0 / MICHELSON_PROBE_GROWTH)
             }
             [_, Some(Sighting::Partial(_))] => {
                 [MICHELSON_SEARCH_SHARE * span; 2].map(|p| p.max(probe[0]))
             }
-            [None, None] if motion.from.is_none() && !self.trackers[k].clean.is_empty() => {
+            [None, None] if !self.trackers[k].clean.is_empty() => {
                 if self.trackers[k].model().is_none() && !self.still_in_view(k, after) {
                     // Not yet mapped, and out of view before and after the move: it says
                     // nothing of the response, and a longer probe only strays farther
@@ -325,7 +285,7 @@ impl MichelsonAgent {
                     scaled(MICHELSON_PROBE_GROWTH)
                 }
             }
-            [None, None] if self.trackers[k].clean.is_empty() => {
+            [None, None] => {
                 // Never seen whole: search in big steps, wider each time; once the other
                 // mirror's response is known (the two mounts are alike), on a grid whose
                 // gaps the image spans.
@@ -347,15 +307,14 @@ impl MichelsonAgent {
         self.trackers[k].set_probe(length);
     }
 
-    /// Where probes of mirror `k` steer its beam on an image of `size`: the centre, unless
+    /// Where probes of mirror `k` steer its beam on an image of `size`: the `centre`, unless
     /// what it must not be steered onto ([`Self::obstacle`]) sits within [`MICHELSON_APART_RADII`]
     /// summed radii of it. Then the point that far from the obstacle, straight away from it
     /// towards where the probed beam was last seen (through the centre when that is on the
     /// obstacle), turned as little as keeps it whole in view. At a small response the
     /// command range holds both beams near the centre, and probes steered there keep them
     /// merged: the probed beam would never be seen alone.
-    fn probe_target(&self, k: usize, size: Vec2) -> Vec2 {
-        let centre = [size[0] / 2.0, size[1] / 2.0];
+    fn probe_target(&self, k: usize, centre: Vec2, size: Vec2) -> Vec2 {
         let Some((other, from)) = self.obstacle(k, centre) else {
             return centre;
         };
@@ -383,13 +342,8 @@ impl MichelsonAgent {
         // them is far enough, the reachable place farthest from the obstacle.
         let tracker = &self.trackers[k];
         let map = tracker.steering_map();
-        let reachable = |p: &Vec2| {
-            map.is_none_or(|m| {
-                m.solve(*p).is_some_and(|u| {
-                    (0..2).all(|a| (tracker.range[a][0]..=tracker.range[a][1]).contains(&u[a]))
-                })
-            })
-        };
+        let reachable =
+            |p: &Vec2| map.is_none_or(|m| m.solve(*p).is_some_and(|u| tracker.clamp(u) == u));
         let turns = (0..=6).flat_map(|i| [f64::from(i), -f64::from(i)]);
         let far_enough = |p: &Vec2| distance(*p, other) >= apart - 1.0;
         if let Some(p) = turns
@@ -432,8 +386,10 @@ impl MichelsonAgent {
         {
             return Some((p, latest.image));
         }
-        let merged = tracker.partial.iter().any(|s| s.order == latest.order)
-            && !self.at_border(k, latest.image, centre);
+        // Within BORDER_RADII of its radius of a border, it is cut by it, not merged.
+        let border = BORDER_RADII * self.scales.radius(k);
+        let at_border = (0..2).any(|a| centre[a] - (latest.image[a] - centre[a]).abs() < border);
+        let merged = tracker.partial.iter().any(|s| s.order == latest.order) && !at_border;
         if !merged {
             return None;
         }
@@ -446,13 +402,12 @@ impl MichelsonAgent {
 
     /// Whether `view` shows a beam where beam `k` was last seen (within the match radius).
     fn still_in_view(&self, k: usize, view: &View) -> bool {
-        let Some(last) = self.trackers[k].latest() else {
-            return false;
-        };
         let reach = MICHELSON_MATCH_RADII * self.scales.radius(k);
-        view.beams
-            .iter()
-            .any(|b| distance(b.centre, last.image) < reach)
+        self.trackers[k].latest().is_some_and(|last| {
+            view.beams
+                .iter()
+                .any(|b| distance(b.centre, last.image) < reach)
+        })
     }
 
     /// How far a probe should move beam `k` on an image of `size`, px.
@@ -463,11 +418,8 @@ impl MichelsonAgent {
     fn observe_check(&mut self, before: &View, view: &View, predicted: [Vec2; 2]) -> bool {
         // A beam the check moved across the image is not a spot that stayed put (a stray
         // reflection or ghost near where its map put it).
-        let steady = self.scales.steady();
-        let mut stayed = vec![false; view.beams.len()];
-        for (_, j) in stationary_pairs(&before.beams, &view.beams, steady) {
-            stayed[j] = true;
-        }
+        let pairs = stationary_pairs(&before.beams, &view.beams, self.scales.steady());
+        let stayed: Vec<usize> = pairs.iter().map(|p| p.1).collect();
         let found = [0, 1].map(|k| {
             let moved_far = self.trackers[k].model().is_some_and(|m| {
                 distance(m.predict(self.before[k]), predicted[k]) > self.scales.radius(k)
@@ -480,15 +432,13 @@ impl MichelsonAgent {
         {
             return false;
         }
-        for (k, seen) in found.iter().enumerate() {
-            self.refuted[k] |= seen.is_none();
-        }
         // Each beam where its map put it, by the chi-square test of the innovation.
         let believed =
             (0..2).all(|k| found[k].is_some_and(|c| self.trackers[k].believes(self.mirror(k), c)));
         let before_refit = self.trackers.clone();
         let mut relearned = false;
         for (k, seen) in found.iter().enumerate() {
+            self.refuted[k] |= seen.is_none();
             if let Some(c) = seen {
                 let u = self.mirror(k);
                 self.trackers[k].add_clean(u, *c);
@@ -518,13 +468,13 @@ impl MichelsonAgent {
     }
 
     /// The clean centre of beam `k` nearest `point` in `view`, within the match radius,
-    /// passing over the detections flagged in `skip`.
-    fn find_near(&self, view: &View, k: usize, point: Vec2, skip: &[bool]) -> Option<Vec2> {
+    /// passing over the detections indexed in `skip`.
+    fn find_near(&self, view: &View, k: usize, point: Vec2, skip: &[usize]) -> Option<Vec2> {
         let radius = self.scales.radius(k);
         view.beams
             .iter()
             .enumerate()
-            .filter(|(i, _)| !skip.get(*i).copied().unwrap_or(false))
+            .filter(|(i, _)| !skip.contains(i))
             .filter_map(|(_, b)| sight(b, view, &self.scales, k, None).fit_centre())
             .filter(|c| distance(*c, point) < MICHELSON_MATCH_RADII * radius)
             .min_by(|a, b| distance(*a, point).total_cmp(&distance(*b, point)))
@@ -540,8 +490,7 @@ impl MichelsonAgent {
             return;
         }
         let wanted = self.useful_move(k, size);
-        let [lo, hi] = [0, 1]
-            .map(|i| MICHELSON_PROBE_SHARES[i] * self.spans[2 * k].min(self.spans[2 * k + 1]));
+        let [lo, hi] = MICHELSON_PROBE_SHARES.map(|share| share * self.spans[k]);
         let probe = [0, 1].map(|axis| {
             let response = known.gain[0][axis].hypot(known.gain[1][axis]);
             (wanted / response.max(1e-9)).clamp(lo, hi)
@@ -586,10 +535,9 @@ impl MichelsonAgent {
         (distance(landing, spot) < self.scales.radius(j)).then_some((v, now, landing))
     }
 
-    /// Whether mirror `k`'s beam was never seen and its map is unknown.
-    fn blind(&self, k: usize) -> bool {
-        let tracker = &self.trackers[k];
-        tracker.clean.is_empty() && tracker.partial.is_empty() && tracker.model().is_none()
+    /// Whether mirror `k`'s beam was ever seen, clean or partly.
+    fn sighted(&self, k: usize) -> bool {
+        self.trackers[k].latest().is_some()
     }
 
     /// Moves mirror `k` to `u` and the other mirror to the next point of its own search,
@@ -597,11 +545,10 @@ impl MichelsonAgent {
     fn search(&mut self, k: usize, u: Vec2) -> Action {
         self.before = [self.mirror(0), self.mirror(1)];
         let j = 1 - k;
-        let probe = self.trackers[k].probe;
-        self.trackers[j].set_probe(probe);
-        if self.trackers[j].search_grid.is_none() {
-            self.trackers[j].search_grid = self.trackers[k].search_grid;
-        }
+        let (probe, grid) = (self.trackers[k].probe, self.trackers[k].search_grid);
+        let other = &mut self.trackers[j];
+        other.set_probe(probe);
+        other.search_grid = other.search_grid.or(grid);
         let u = self.trackers[k].clamp(u);
         let v = self.trackers[j].next_probe([0.0, 0.0]);
         self.set_mirror(k, u);
@@ -647,15 +594,11 @@ impl MichelsonAgent {
     /// Learns from an attribution move of mirror `k`: a beam it moved is beam `k`
     /// (learned as a probe); else the beam the search showed is the other mirror's.
     fn observe_attribute(&mut self, before: &View, after: &View, k: usize, appeared: &Beam) {
-        let seen = self.observe_probe(before, after, k, None)
-            || !self.trackers[k].clean.is_empty()
-            || !self.trackers[k].partial.is_empty();
-        if seen {
+        if self.observe_probe(before, after, k, None) || self.sighted(k) {
             return;
         }
         let j = 1 - k;
-        let old = self.before[k];
-        self.trackers[k].add_missing(old);
+        self.trackers[k].add_missing(self.before[k]);
         let sighting = sight(appeared, before, &self.scales, j, None);
         let v = self.mirror(j);
         self.trackers[j].file(v, Some(sighting));
@@ -665,8 +608,7 @@ impl MichelsonAgent {
     fn set_mirror(&mut self, k: usize, u: Vec2) {
         let from = self.mirror(k);
         self.trackers[k].moved(from, u);
-        self.command[2 * k] = u[0];
-        self.command[2 * k + 1] = u[1];
+        self.command[2 * k..2 * k + 2].copy_from_slice(&u);
     }
 
     /// Both beams apart on either side of the centre, where each is seen whole.
@@ -674,40 +616,35 @@ impl MichelsonAgent {
         let radius = 0.5 * (self.scales.radius(0) + self.scales.radius(1));
         let wanted = CHECK_APART_RADII[self.checks.min(CHECK_APART_RADII.len() - 1)] * radius;
         // Along each image axis, as far apart as wanted while both stay whole.
-        let apart = [0, 1].map(|axis| {
+        let [ax, ay] = [0, 1].map(|axis| {
             wanted
                 .min(size[axis] / 2.0 - WHOLE_RADII * radius)
                 .max(radius)
         });
-        let [ax, ay] = apart;
         let layouts = [
             [[-ax, 0.0], [ax, 0.0]],
             [[0.0, -ay], [0.0, ay]],
             [[ax, 0.0], [-ax, 0.0]],
             [[0.0, ay], [0.0, -ay]],
         ];
-        let first = self.checks % layouts.len();
-        let mut chosen = None;
-        for layout in layouts.iter().cycle().skip(first).take(layouts.len()) {
-            let targets = layout.map(|d| [centre[0] + d[0], centre[1] + d[1]]);
-            let solved = [0, 1].map(|k| self.trackers[k].command_for(targets[k], self.mirror(k)));
-            if let [Some(a), Some(b)] = solved {
-                let within = [a, b].iter().enumerate().zip(targets).all(|((k, u), t)| {
-                    self.trackers[k]
-                        .predict(*u)
-                        .is_some_and(|p| distance(p, t) < 1.0)
-                });
-                if within || chosen.is_none() {
-                    chosen = Some([a, b]);
-                }
-                if within {
-                    break;
-                }
-            }
-        }
+        // From the next layout in turn, the first whose commands put both beams where wanted
+        // (within), else the first solved.
+        let mut candidates = (self.checks..self.checks + layouts.len()).filter_map(|i| {
+            let targets = layouts[i % layouts.len()].map(|d| [centre[0] + d[0], centre[1] + d[1]]);
+            let [a, b] = [0, 1].map(|k| self.trackers[k].command_for(targets[k], self.mirror(k)));
+            let solved = [a?, b?];
+            let lands = |k: usize| self.trackers[k].predict(solved[k]);
+            let within = (0..2).all(|k| lands(k).is_some_and(|p| distance(p, targets[k]) < 1.0));
+            Some((solved, within))
+        });
+        let first = candidates.next();
+        let chosen = first
+            .filter(|c| c.1)
+            .or_else(|| candidates.find(|c| c.1))
+            .or(first);
         self.checks += 1;
         self.before = [self.mirror(0), self.mirror(1)];
-        let Some(solved) = chosen else {
+        let Some((solved, _)) = chosen else {
             return self.finish(centre);
         };
         let mut predicted = [[0.0; 2]; 2];
@@ -734,13 +671,6 @@ impl MichelsonAgent {
             command: self.command.map(|c| c.round() as i32),
             done,
         }
-    }
-
-    /// Whether beam `k` seen at `point` lies within [`BORDER_RADII`] of its radius of a
-    /// border of the image about `centre` (cut by it, not merged).
-    fn at_border(&self, k: usize, point: Vec2, centre: Vec2) -> bool {
-        let border = BORDER_RADII * self.scales.radius(k);
-        (0..2).any(|axis| centre[axis] - (point[axis] - centre[axis]).abs() < border)
     }
 }
 

@@ -60,24 +60,22 @@ impl Policy for VisionPolicy {
     async fn decide(&mut self, observation: &Observation) -> Result<Decision, PolicyError> {
         let rejected = matches!(observation.feedback, Feedback::Rejected { .. });
         let (image, remaining) = (&observation.image, observation.remaining);
-        let (action, claims) = match &mut self.agent {
+        let (claims, action) = match &mut self.agent {
             Agent::Michelson(agent) => {
                 let action = agent.decide(image, rejected, remaining);
-                let claims = agent.claims(action.is_done());
-                (action, Some(claims))
+                (agent.claims(action.is_done()), action)
             }
             Agent::Cavity(agent) => {
                 let action = agent.decide(image, rejected, remaining);
-                let claims = agent.claims(action.is_done());
-                (action, Some(claims))
+                (agent.claims(action.is_done()), action)
             }
             Agent::Relay(agent) => {
                 let action = Action::Relay(agent.decide(image, rejected, remaining));
-                (action, Some(agent.claims()))
+                (agent.claims(), action)
             }
         };
         Ok(Decision {
-            claims,
+            claims: Some(claims),
             ..Decision::new(action)
         })
     }

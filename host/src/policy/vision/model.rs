@@ -25,13 +25,17 @@ pub struct Affine {
 }
 
 impl Affine {
+    /// The response `gain` alone, no offset: where a move of the command moves the feature.
+    pub fn linear(gain: [[f64; 2]; 2]) -> Self {
+        Self {
+            offset: [0.0; 2],
+            gain,
+        }
+    }
+
     /// Where the feature shows for `command`.
     pub fn predict(&self, command: Vec2) -> Vec2 {
-        let [[a, b], [c, d]] = self.gain;
-        [
-            self.offset[0] + a * command[0] + b * command[1],
-            self.offset[1] + c * command[0] + d * command[1],
-        ]
+        [0, 1].map(|r| self.offset[r] + self.gain[r][0] * command[0] + self.gain[r][1] * command[1])
     }
 
     /// The command that puts the feature at `point`, when the gain is invertible.
@@ -50,17 +54,14 @@ impl Affine {
     pub fn anchored(&self, command: Vec2, image: Vec2) -> Affine {
         let moved = self.predict(command);
         Affine {
-            offset: [
-                self.offset[0] + image[0] - moved[0],
-                self.offset[1] + image[1] - moved[1],
-            ],
+            offset: [0, 1].map(|a| self.offset[a] + image[a] - moved[a]),
             gain: self.gain,
         }
     }
 
     /// The ratio of the gain's smaller singular value to its larger (1: both directions
     /// of command move the feature alike; 0: one does not move it).
-    pub fn balance(&self) -> f64 {
+    fn balance(&self) -> f64 {
         let [[a, b], [c, d]] = self.gain;
         let frobenius = a * a + b * b + c * c + d * d;
         let det = (a * d - b * c).abs();
@@ -96,9 +97,7 @@ fn fit(points: &[Point], dir: Vec2, noise: f64, min_spread: f64) -> Option<Affin
     if !spans_both_axes(points, min_spread) {
         return None;
     }
-    bench::robust_fit(points, noise, points.len())?
-        .response
-        .mean(dir)
+    bench::model_of(points, noise).mean(dir)
 }
 
 /// The larger of a response's two columns' lengths: px per step of the stronger axis.
@@ -128,12 +127,7 @@ pub fn square_rings(centre: Vec2, spacing: Vec2, multiples: RangeInclusive<i32>)
                 .flat_map(move |i| (-k..=k).map(move |j| (i, j)))
                 .filter(move |(i, j)| i.abs().max(j.abs()) == k)
         })
-        .map(|(i, j)| {
-            [
-                centre[0] + f64::from(i) * spacing[0],
-                centre[1] + f64::from(j) * spacing[1],
-            ]
-        })
+        .map(|(i, j)| [0, 1].map(|a| centre[a] + f64::from([i, j][a]) * spacing[a]))
         .collect()
 }
 
@@ -161,21 +155,11 @@ pub fn rings(centre: Vec2, spacing: Vec2, multiples: RangeInclusive<i32>) -> Vec
 /// How far a feature at `from` can move either way along the unit `direction` and stay
 /// inside an image of size `view`.
 fn room(from: Vec2, direction: Vec2, view: Vec2) -> f64 {
-    let exit = |sign: f64| {
-        (0..2)
-            .map(|axis| {
-                let step = sign * direction[axis];
-                if step > 1e-9 {
-                    (view[axis] - from[axis]) / step
-                } else if step < -1e-9 {
-                    from[axis] / -step
-                } else {
-                    f64::INFINITY
-                }
-            })
-            .fold(f64::INFINITY, f64::min)
-    };
-    exit(1.0).min(exit(-1.0)).max(0.0)
+    (0..2)
+        .filter(|&axis| direction[axis].abs() > 1e-9)
+        .map(|axis| from[axis].min(view[axis] - from[axis]) / direction[axis].abs())
+        .fold(f64::INFINITY, f64::min)
+        .max(0.0)
 }
 
 /// How a detected beam serves the model.
@@ -246,7 +230,7 @@ pub struct Tracker {
     /// Minimum spread of clean commands for a fit, steps.
     pub min_spread: f64,
     /// The direction each axis last moved in.
-    pub dir: Vec2,
+    dir: Vec2,
     /// The directions before the last move.
     previous_dir: Vec2,
     /// The command the mount was last sent to.
@@ -263,9 +247,8 @@ pub struct Tracker {
     /// The spacing per axis of a square search grid whose points' views tile the
     /// command space, when the response's scale is known (from a like mount), steps.
     pub search_grid: Option<Vec2>,
-    /// The last command where the feature did not show, and how many sightings had been
-    /// made by then.
-    lost_at: Option<(Vec2, usize)>,
+    /// The last command where the feature did not show, while nothing was seen since.
+    lost_at: Option<Vec2>,
 }
 
 impl Tracker {
@@ -292,36 +275,27 @@ impl Tracker {
     /// Books a commanded move from `from` to `to`: the axes that moved set their direction.
     pub fn moved(&mut self, from: Vec2, to: Vec2) {
         self.previous_dir = self.dir;
-        for axis in 0..2 {
-            let step = to[axis] - from[axis];
-            if step.abs() >= SAME_STEP {
-                self.dir[axis] = step.signum();
-            }
-        }
+        self.dir = self.heading(from, to);
         self.current = Some(to);
     }
 
-    /// `dir` on the axes whose band the model fits, 0 on the others.
-    fn banded(&self, dir: Vec2) -> Vec2 {
-        on_axes(dir, self.band)
-    }
-
-    /// The direction each banded axis moves in last when the mount is sent from `from` to
+    /// The direction each axis moves in last when the mount is sent from `from` to
     /// `command` (an axis that stays keeps its last direction).
-    fn dir_from(&self, from: Vec2, command: Vec2) -> Vec2 {
-        self.banded([0, 1].map(|a| {
+    fn heading(&self, from: Vec2, command: Vec2) -> Vec2 {
+        [0, 1].map(|a| {
             let step = command[a] - from[a];
             if step.abs() >= SAME_STEP {
                 step.signum()
             } else {
                 self.dir[a]
             }
-        }))
+        })
     }
 
-    /// [`Self::dir_from`] the command the mount was last sent to.
+    /// [`Self::heading`] from the command the mount was last sent to, on the banded axes.
     fn dir_towards(&self, command: Vec2) -> Vec2 {
-        self.dir_from(self.current.unwrap_or(command), command)
+        let from = self.current.unwrap_or(command);
+        on_axes(self.heading(from, command), self.band)
     }
 
     /// Half the dead band of each axis, steps: how far the load trails the motor after a
@@ -342,15 +316,12 @@ impl Tracker {
         if self.band == [false; 2] {
             return None;
         }
-        let (fit, kept) = self.response()?;
-        if self.remembered_half_band != [0.0; 2] && kept.len() < BAND_MIN_SIGHTINGS {
+        let fit = self.response()?;
+        if self.remembered_half_band != [0.0; 2] && fit.kept.len() < BAND_MIN_SIGHTINGS {
             return None;
         }
         let (gain, shift) = fit.response.gain_and_band()?;
-        let unit = Affine {
-            offset: [0.0; 2],
-            gain,
-        };
+        let unit = Affine::linear(gain);
         // The shift after a move the positive way is the gain times minus half the band.
         Some([0, 1].map(|a| {
             unit.solve([shift[0][a], shift[1][a]])
@@ -403,20 +374,11 @@ impl Tracker {
         Some([0, 1].map(|a| current[a] - half[a] * self.dir[a]))
     }
 
-    /// Sighting `s` as the model takes it: its direction on the banded axes.
-    fn point(&self, s: &Sight) -> Point {
-        s.point(self.band)
-    }
-
-    /// The clean sightings a map is fitted to: the whole ones alone once they span both
-    /// axes (a fitted centre of a cut spot is less exact), else all; on a banded axis, only
-    /// those made after it first moved (before, where in the band the load sat is unknown).
-    fn points(&self) -> Vec<Point> {
-        self.points_for(self.band)
-    }
-
-    /// [`Self::points`] with the axes `band` marks taken as banded.
-    fn points_for(&self, band: [bool; 2]) -> Vec<Point> {
+    /// The clean sightings a map is fitted to, the axes `band` marks taken as banded: the
+    /// whole ones alone once they span both axes (a fitted centre of a cut spot is less
+    /// exact), else all; on a banded axis, only those made after it first moved (before,
+    /// where in the band the load sat is unknown).
+    fn points(&self, band: [bool; 2]) -> Vec<Point> {
         let known: Vec<&Sight> = self
             .clean
             .iter()
@@ -434,36 +396,27 @@ impl Tracker {
     }
 
     /// The fitted model for the way the axes last moved, once the clean sightings span both
-    /// axes.
-    /// Sightings the others contradict (by more than a few times the position noise) are
-    /// dropped one by one, worst first, while more than a minimal fit remains: an early
-    /// sighting of a beam cut by the border must not bend the map for ever.
+    /// axes, less those the others contradict ([`bench::robust_fit`]): an early sighting of a
+    /// beam cut by the border must not bend the map for ever.
     pub fn model(&self) -> Option<Affine> {
-        let (fit, _) = self.response()?;
-        fit.response.mean(self.banded(self.dir))
+        self.response()?.response.mean(on_axes(self.dir, self.band))
     }
 
     /// The bench model of the clean sightings less those its chi-square test sets aside
-    /// ([`bench::robust_fit`]), with its uncertainty, and the points it kept.
-    fn response(&self) -> Option<(bench::Fit, Vec<Point>)> {
-        let points = self.points();
+    /// ([`bench::robust_fit`]), with its uncertainty and the points it kept.
+    fn response(&self) -> Option<bench::Fit> {
+        let points = self.points(self.band);
         if !spans_both_axes(&points, self.min_spread) {
             return None;
         }
-        let fit = bench::robust_fit(&points, self.noise, ROBUST_MIN_POINTS)?;
-        let points = points
-            .into_iter()
-            .zip(&fit.kept)
-            .filter_map(|(point, keep)| keep.then_some(point))
-            .collect();
-        Some((fit, points))
+        bench::robust_fit(&points, self.noise, ROBUST_MIN_POINTS)
     }
 
     /// Whether the feature lands within `tolerance` px of where the model predicts once the
     /// mount is sent from where it is now to `command`, with probability `confidence`: what
     /// the model does not know and the bench's own scatter ([`bench::Fit::sure_at`]).
     pub fn sure_at(&self, command: Vec2, tolerance: f64, confidence: f64) -> bool {
-        self.response().is_some_and(|(fit, _)| {
+        self.response().is_some_and(|fit| {
             let dir = self.dir_towards(command);
             fit.sure_at(command, dir, self.noise, tolerance, confidence)
         })
@@ -472,42 +425,33 @@ impl Tracker {
     /// Whether a sighting at `image` for `command` (the mount sent there from where it
     /// is now) passes the model's chi-square test: `true` while there is no model.
     pub fn believes(&self, command: Vec2, image: Vec2) -> bool {
-        self.response().is_none_or(|(fit, _)| {
-            let dir = self.dir_towards(command);
-            fit.believes(
-                Point {
-                    command,
-                    dir,
-                    image,
-                },
-                self.noise,
-            )
+        self.response().is_none_or(|fit| {
+            let point = Point {
+                command,
+                dir: self.dir_towards(command),
+                image,
+            };
+            fit.believes(point, self.noise)
         })
     }
 
-    /// The fitted model anchored at the latest clean sighting the fit did not reject: one
-    /// it contradicts (another beam taken for this one) would carry its error into every
-    /// prediction.
-    pub fn local_model(&self) -> Option<Affine> {
-        self.local_model_for(self.banded(self.dir))
+    /// The fitted model for commands reached with the axes last moving in `dir`, anchored at
+    /// the latest clean sighting the fit did not reject: one it contradicts (another beam
+    /// taken for this one) would carry its error into every prediction.
+    fn local_model(&self, dir: Vec2) -> Option<Affine> {
+        self.anchored_model(&self.response()?, dir)
     }
 
-    /// [`Self::local_model`] for commands reached with the axes last moving in `dir`.
-    fn local_model_for(&self, dir: Vec2) -> Option<Affine> {
-        let (fit, kept) = self.response()?;
-        self.anchored_model(&fit, &kept, dir)
-    }
-
-    /// [`Self::local_model_for`] from the bench model `fit` and the points it `kept`.
-    fn anchored_model(&self, fit: &bench::Fit, kept: &[Point], dir: Vec2) -> Option<Affine> {
+    /// [`Self::local_model`] from the bench model `fit`.
+    fn anchored_model(&self, fit: &bench::Fit, dir: Vec2) -> Option<Affine> {
         let model = fit.response.mean(dir)?;
-        let anchor = self
+        let Some(anchor) = self
             .clean
             .iter()
             .rev()
-            .map(|s| self.point(s))
-            .find(|point| kept.contains(point));
-        let Some(anchor) = anchor else {
+            .map(|s| s.point(self.band))
+            .find(|point| fit.kept.contains(point))
+        else {
             return Some(model);
         };
         let own = fit.response.mean(anchor.dir)?;
@@ -520,10 +464,8 @@ impl Tracker {
 
     /// Where the feature shows once the mount is sent from where it is now to `command`.
     pub fn predict(&self, command: Vec2) -> Option<Vec2> {
-        Some(
-            self.local_model_for(self.dir_towards(command))?
-                .predict(command),
-        )
+        self.local_model(self.dir_towards(command))
+            .map(|m| m.predict(command))
     }
 
     /// The command that puts the feature at `point` when the mount is sent there from
@@ -531,12 +473,12 @@ impl Tracker {
     /// the move takes (which puts the command past the target by half the band on the side
     /// it approaches from); an axis already there stays.
     pub fn command_for(&self, point: Vec2, from: Vec2) -> Option<Vec2> {
-        let (fit, kept) = self.response()?;
-        let solve = |dir: Vec2| self.anchored_model(&fit, &kept, dir)?.solve(point);
-        let mut dir = self.dir_from(from, from);
+        let fit = self.response()?;
+        let solve = |dir: Vec2| self.anchored_model(&fit, dir)?.solve(point);
+        let mut dir = on_axes(self.dir, self.band);
         let mut target = solve(dir)?;
         for _ in 0..2 {
-            let next = self.dir_from(from, target);
+            let next = on_axes(self.heading(from, target), self.band);
             if next == dir {
                 break;
             }
@@ -571,26 +513,20 @@ impl Tracker {
             side(a, 1.0) + side(a, -1.0) >= BAND_MIN_SIGHTINGS
                 && side(a, 1.0).min(side(a, -1.0)) >= BAND_PER_SIDE
         });
-        let with = self.points_for([0, 1].map(|a| self.band[a] || eligible[a]));
+        let with = self.points([0, 1].map(|a| self.band[a] || eligible[a]));
         let freedom = bench::residual_freedom(&with);
         if freedom == 0 || !spans_both_axes(&with, self.min_spread) {
             return false;
         }
         let squares =
-            |points: &[Point]| bench::squares(&bench::model_of(points.iter(), self.noise), points);
+            |points: &[Point]| bench::squares(&bench::model_of(points, self.noise), points);
         let after = squares(&with);
         let scatter = (after / freedom as f64).max(self.noise * self.noise);
         let mut found = false;
         let unbanded = [0, 1].map(|a| eligible[a] && !self.band[a]);
         for axis in (0..2).filter(|&a| unbanded[a]) {
-            let without: Vec<Point> = with
-                .iter()
-                .map(|p| {
-                    let mut p = *p;
-                    p.dir[axis] = 0.0;
-                    p
-                })
-                .collect();
+            let mut without = with.clone();
+            without.iter_mut().for_each(|p| p.dir[axis] = 0.0);
             let explained = (squares(&without) - after).max(0.0);
             let significant = explained / scatter > bench::quantile(BAND_CONFIDENCE, freedom);
             let worth = (explained / with.len() as f64).sqrt() > BAND_WORTH_NOISES * self.noise;
@@ -605,14 +541,13 @@ impl Tracker {
     /// What the tracker believes, for the transcript: how many sightings of each kind, the
     /// fitted response, the lost motion, and where it puts the feature for `command`.
     pub fn claims(&self, command: Vec2) -> serde_json::Value {
-        let model = self.local_model();
         serde_json::json!({
             "sightings": {
                 "clean": self.clean.len(),
                 "partial": self.partial.len(),
                 "missing": self.missing.len(),
             },
-            "response_px_per_step": model.map(|m| m.gain),
+            "response_px_per_step": self.model().map(|m| m.gain),
             "lost_motion_steps": self.lost(),
             "predicted_px": self.predict(command),
         })
@@ -621,36 +556,7 @@ impl Tracker {
     /// Records a clean sighting at `command`, replacing an earlier one at the same command
     /// and direction.
     pub fn add_clean(&mut self, command: Vec2, image: Vec2) {
-        self.add_clean_with(command, image, self.dir, false);
-    }
-
-    fn add_clean_with(&mut self, command: Vec2, image: Vec2, dir: Vec2, fitted: bool) {
-        self.clean
-            .retain(|s| distance(s.command, command) >= SAME_STEP || s.dir != dir);
-        let order = self.next_order();
-        self.clean.push(Sight {
-            command,
-            image,
-            dir,
-            order,
-            fitted,
-        });
-    }
-
-    fn add_partial_with(&mut self, command: Vec2, image: Vec2, dir: Vec2) {
-        let order = self.next_order();
-        self.partial.push(Sight {
-            command,
-            image,
-            dir,
-            order,
-            fitted: false,
-        });
-    }
-
-    fn next_order(&mut self) -> usize {
-        self.made += 1;
-        self.made
+        self.file_with(command, Sighting::Clean(image), self.dir);
     }
 
     /// Files what was seen at the current `command` (or that nothing was).
@@ -663,10 +569,22 @@ impl Tracker {
 
     /// Files `seen` at `command`, made when the axes had last moved in directions `dir`.
     fn file_with(&mut self, command: Vec2, seen: Sighting, dir: Vec2) {
-        match seen {
-            Sighting::Clean(c) => self.add_clean_with(command, c, dir, false),
-            Sighting::Fitted(c) => self.add_clean_with(command, c, dir, true),
-            Sighting::Partial(c) => self.add_partial_with(command, c, dir),
+        self.made += 1;
+        self.lost_at = None;
+        let (Sighting::Clean(image) | Sighting::Fitted(image) | Sighting::Partial(image)) = seen;
+        let sight = Sight {
+            command,
+            image,
+            dir,
+            order: self.made,
+            fitted: matches!(seen, Sighting::Fitted(_)),
+        };
+        if let Sighting::Partial(_) = seen {
+            self.partial.push(sight);
+        } else {
+            self.clean
+                .retain(|s| distance(s.command, command) >= SAME_STEP || s.dir != dir);
+            self.clean.push(sight);
         }
     }
 
@@ -676,7 +594,7 @@ impl Tracker {
     }
 
     pub fn add_missing(&mut self, command: Vec2) {
-        self.lost_at = Some((command, self.made));
+        self.lost_at = Some(command);
         self.missing.push(command);
     }
 
@@ -689,17 +607,13 @@ impl Tracker {
     /// of `command`.
     pub fn tried_within(&self, command: Vec2, within: f64) -> bool {
         let near = |u: &Vec2| distance(*u, command) < within;
-        self.clean.iter().any(|s| near(&s.command))
-            || self.partial.iter().any(|s| near(&s.command))
-            || self.missing.iter().any(near)
+        let seen = self.clean.iter().chain(&self.partial).map(|s| &s.command);
+        seen.chain(&self.missing).any(near)
     }
 
     /// Clamps a command into the permitted range.
     pub fn clamp(&self, command: Vec2) -> Vec2 {
-        [
-            command[0].clamp(self.range[0][0], self.range[0][1]),
-            command[1].clamp(self.range[1][0], self.range[1][1]),
-        ]
+        [0, 1].map(|a| command[a].clamp(self.range[a][0], self.range[a][1]))
     }
 
     /// The next command to learn the response: a move along an axis the clean observations
@@ -714,26 +628,20 @@ impl Tracker {
                     .iter()
                     .any(|s| (s.command[axis] - base[axis]).abs() >= self.min_spread)
             };
-            let mut dirs = Vec::new();
-            for axis in [0, 1] {
-                if !spans(axis) || self.clean.len() >= 2 {
-                    let mut d = [0.0; 2];
-                    d[axis] = self.probe[axis];
-                    dirs.push(d);
-                    dirs.push([-d[0], -d[1]]);
-                }
-            }
+            let mut dirs: Vec<Vec2> = [0, 1]
+                .into_iter()
+                .filter(|&axis| !spans(axis) || self.clean.len() >= 2)
+                .flat_map(|axis| {
+                    let d = [0, 1].map(|a| if a == axis { self.probe[a] } else { 0.0 });
+                    [d, [-d[0], -d[1]]]
+                })
+                .collect();
             // Axes not yet spanned first.
             dirs.sort_by_key(|d| usize::from(spans(usize::from(d[1] != 0.0))));
-            let mut out: Vec<Vec2> = dirs
-                .iter()
-                .map(|d| [base[0] + d[0], base[1] + d[1]])
-                .collect();
-            out.extend(
-                dirs.iter()
-                    .map(|d| [base[0] + 2.0 * d[0], base[1] + 2.0 * d[1]]),
-            );
-            out
+            [1.0, 2.0]
+                .into_iter()
+                .flat_map(|m| dirs.iter().map(move |d| [0, 1].map(|a| base[a] + m * d[a])))
+                .collect()
         } else if let Some(last) = self.partial.last() {
             rings(last.command, self.probe, 1..=1)
         } else if let Some(grid) = self.search_grid {
@@ -822,14 +730,10 @@ impl Tracker {
     /// says one direction hardly moves the feature.
     fn rough_map(&self) -> Option<(Affine, Sight)> {
         let sights = self.steering_sightings();
-        let points: Vec<Point> = sights.iter().map(|s| self.point(s)).collect();
+        let points: Vec<Point> = sights.iter().map(|s| s.point(self.band)).collect();
         let latest = *sights.last()?;
-        let rough = fit(
-            &points,
-            self.banded(latest.dir),
-            self.noise,
-            self.min_spread,
-        )?;
+        let dir = on_axes(latest.dir, self.band);
+        let rough = fit(&points, dir, self.noise, self.min_spread)?;
         if rough.balance() < ROUGH_BALANCE {
             return None;
         }
@@ -839,7 +743,7 @@ impl Tracker {
     /// The best map there is: the fitted one, else the rough one of every sighting (`None`
     /// while neither exists).
     pub fn steering_map(&self) -> Option<Affine> {
-        self.local_model()
+        self.local_model(on_axes(self.dir, self.band))
             .or_else(|| self.rough_map().map(|(rough, _)| rough))
     }
 
@@ -854,15 +758,9 @@ impl Tracker {
     /// When the last move lost a feature that showed just before, the same move the other
     /// way from where it showed: it left the image that way, so the centre lies the other.
     fn back_the_other_way(&self) -> Option<Vec2> {
-        let (lost, made) = self.lost_at?;
+        let lost = self.lost_at?;
         let last = self.latest()?;
-        if last.order != made {
-            return None;
-        }
-        let back = self.clamp([
-            2.0 * last.command[0] - lost[0],
-            2.0 * last.command[1] - lost[1],
-        ]);
+        let back = self.clamp([0, 1].map(|a| 2.0 * last.command[a] - lost[a]));
         (!self.tried_within(back, self.same_command())).then_some(back)
     }
 
@@ -870,14 +768,12 @@ impl Tracker {
     /// a direction, else every sighting (a clipped beam's centroid moves less than the beam,
     /// but the right way: steering by it overshoots towards the centre, into view).
     fn steering_sightings(&self) -> Vec<Sight> {
-        let spans = |sights: &[Sight]| {
-            sights.last().is_some_and(|last| {
-                sights
-                    .iter()
-                    .any(|s| distance(s.command, last.command) >= self.min_spread)
-            })
-        };
-        if spans(&self.clean) {
+        let spans = self.clean.last().is_some_and(|last| {
+            self.clean
+                .iter()
+                .any(|s| distance(s.command, last.command) >= self.min_spread)
+        });
+        if spans {
             return self.clean.clone();
         }
         let mut all: Vec<Sight> = self.clean.iter().chain(&self.partial).copied().collect();
@@ -898,10 +794,7 @@ impl Tracker {
             return None;
         }
         let along = [(other[0] - base[0]) / span, (other[1] - base[1]) / span];
-        let response = [
-            (other_seen[0] - seen[0]) / span,
-            (other_seen[1] - seen[1]) / span,
-        ];
+        let response = [0, 1].map(|a| (other_seen[a] - seen[a]) / span);
         let strength = response[0].powi(2) + response[1].powi(2);
         if strength < 1e-12 {
             return None;
@@ -918,10 +811,7 @@ impl Tracker {
             [along[1].abs(), -along[0] * along[1].signum()]
         };
         // The across response is not known yet: take the same size, at right angles.
-        let landing = [
-            seen[0] + travel * response[0],
-            seen[1] + travel * response[1],
-        ];
+        let landing = [0, 1].map(|a| seen[a] + travel * response[a]);
         let size = strength.sqrt();
         let sideways = [-response[1] / size, response[0] / size];
         let room = room(landing, sideways, view) - margin;
@@ -931,10 +821,7 @@ impl Tracker {
             .into_iter()
             .map(|share| {
                 let step = share * probe;
-                self.clamp([
-                    base[0] + travel * along[0] + step * across[0],
-                    base[1] + travel * along[1] + step * across[1],
-                ])
+                self.clamp([0, 1].map(|a| base[a] + travel * along[a] + step * across[a]))
             })
             .find(|c| {
                 let spread = (c[0] - base[0]) * across[0] + (c[1] - base[1]) * across[1];

@@ -73,8 +73,6 @@ pub struct RelayAgent {
     previous: Option<(View, usize, [i32; 8])>,
     /// Stationary features seen per station (stray light), px.
     stray: Vec<(usize, Vec2)>,
-    /// The spot steered by last turned out to be stray light.
-    steered_by_stray: bool,
     /// How far the current mirror was tilted at this station since anything last moved
     /// there, steps.
     still_swing: f64,
@@ -116,7 +114,7 @@ impl RelayAgent {
             station: 7,
             mirror: 0,
             phase: Phase::Near,
-            search: new_tracker(limits),
+            search: Tracker::new([1.0; 2], [[0.0; 2]; 2]),
             near_start: [0.0; 2],
             near: Servo::new(1.0, [1.0, 1.0], None),
             far: Servo::new(1.0, [1.0, 1.0], None),
@@ -126,7 +124,6 @@ impl RelayAgent {
             known_near: None,
             previous: None,
             stray: Vec::new(),
-            steered_by_stray: false,
             still_swing: 0.0,
             radius: None,
             last: None,
@@ -153,22 +150,16 @@ impl RelayAgent {
     /// of the range, growing while nothing shows.
     fn new_search(&self) -> Tracker {
         let bound = f64::from(self.limits.max_cumulative);
-        match self
+        let probe = match self
             .nominal_response(2 * self.mirror)
             .zip(self.image_side_px)
         {
             Some((response, side)) => {
-                let probe =
-                    (RELAY_SEARCH_GRID_SHARE * side / response).clamp(1.0, self.widest_search());
-                Tracker::new([probe, probe], [[-bound, bound], [-bound, bound]])
+                (RELAY_SEARCH_GRID_SHARE * side / response).clamp(1.0, MAX_SEARCH_SHARE * bound)
             }
-            None => new_tracker(&self.limits),
-        }
-    }
-
-    /// The longest search probe, steps.
-    fn widest_search(&self) -> f64 {
-        MAX_SEARCH_SHARE * f64::from(self.limits.max_cumulative)
+            None => RELAY_CAUTIOUS_SHARE * 2.0 * bound,
+        };
+        Tracker::new([probe, probe], [[-bound, bound], [-bound, bound]])
     }
 
     /// Where mirror `m`'s load is (vertical, horizontal), steps.
@@ -178,10 +169,7 @@ impl RelayAgent {
 
     /// The cumulative command of mirror `m` (vertical, horizontal), steps.
     fn command_of(&self, m: usize) -> Vec2 {
-        [
-            f64::from(self.cumulative[2 * m]),
-            f64::from(self.cumulative[2 * m + 1]),
-        ]
+        [2 * m, 2 * m + 1].map(|a| f64::from(self.cumulative[a]))
     }
 
     /// The next action for a new frame; `rejected` means nothing happened.
@@ -194,11 +182,9 @@ impl RelayAgent {
         }
         let view = View::of(self.backdrops.picture(self.station, frame));
         let spot = self.find_spot(&view);
-        if std::mem::take(&mut self.steered_by_stray) && self.phase == Phase::Near {
-            self.restart_near();
-        }
         self.seen_at = spot.map(|s| s.centre);
         let working = 2 * self.mirror + usize::from(self.phase == Phase::Far);
+        let (size, centre) = (view.size(), view.centre());
         if remaining > MIN_REMAINING_TO_THROW
             && self.station == working
             && let Some(s) = spot.filter(|s| s.edge_level < WHOLE_ENOUGH_EDGE)
@@ -214,35 +200,18 @@ impl RelayAgent {
         if self.station == working {
             self.file_sighting(spot);
         }
-        let (size, centre) = {
-            let v = &self.previous.as_ref().expect("just set").0;
-            (v.size(), v.centre())
-        };
-        let near_station = 2 * self.mirror;
-        let far_station = near_station + 1;
-        if remaining <= 1 {
-            return self.act(if self.station == 7 {
-                RelayAction::Done
-            } else {
-                measure(7)
-            });
-        }
         if remaining <= 2 && self.station != 7 {
             return self.act(measure(7));
         }
+        if remaining <= 1 {
+            return self.act(RelayAction::Done);
+        }
+        if self.station != working {
+            return self.act(measure(working));
+        }
         match self.phase {
-            Phase::Near => {
-                if self.station != near_station {
-                    return self.act(measure(near_station));
-                }
-                self.near_phase(spot, centre, size)
-            }
-            Phase::Far => {
-                if self.station != far_station {
-                    return self.act(measure(far_station));
-                }
-                self.far_phase(spot, centre, size)
-            }
+            Phase::Near => self.near_phase(spot, centre, size),
+            Phase::Far => self.far_phase(spot, centre, size),
         }
     }
 
@@ -256,38 +225,36 @@ impl RelayAgent {
         let candidates: Vec<Beam> = view
             .beams
             .iter()
-            .filter(|b| {
-                !self.stray.iter().any(|(s, p)| {
-                    *s == self.station
-                        && distance(*p, b.centre) < STRAY_RADII * radius.max(b.size())
-                })
-            })
+            .filter(|b| !self.stray_near(b.centre, STRAY_RADII * radius.max(b.size())))
             .copied()
             .collect();
-        let Some((before, station, tilts)) = &self.previous else {
-            return strongest(&candidates).copied();
-        };
-        if *station != self.station {
+        let Some((before, _, tilts)) = self.previous.as_ref().filter(|p| p.1 == self.station)
+        else {
             self.still_swing = 0.0;
             return strongest(&candidates).copied();
-        }
+        };
         let steady = 0.1 * radius;
-        let tilted = *tilts != self.cumulative;
-        if tilted {
+        if *tilts != self.cumulative {
             let moved = motion(before, view, steady, None, None);
             if moved.to.is_some() || moved.from.is_some() {
                 self.still_swing = 0.0;
             } else {
-                self.still_swing += self.swing_since(tilts);
-                if self.still_swing >= self.longest_probe() {
-                    // Tilts adding up to the longest probe moved nothing: all that shows is
-                    // stray light, and the servo that steered by it starts again
-                    // (searching, the beam unseen).
+                // The current mirror's tilt since then, steps (the longer axis's move).
+                let m = self.mirror;
+                self.still_swing += (2 * m..2 * m + 2)
+                    .map(|a| f64::from(self.cumulative[a] - tilts[a]).abs())
+                    .fold(0.0, f64::max);
+                if self.still_swing >= self.probe_bounds()[1] {
+                    // Tilts adding up to the longest probe (it moves a beam across any sensor)
+                    // moved nothing: all that shows is stray light, and the servo that steered
+                    // by it starts again (searching, the beam unseen).
                     for (i, _) in stationary_pairs(&before.beams, &view.beams, steady) {
                         self.stray.push((self.station, before.beams[i].centre));
                     }
                     self.still_swing = 0.0;
-                    self.steered_by_stray = true;
+                    if self.phase == Phase::Near {
+                        self.near = self.new_near_servo();
+                    }
                     return None;
                 }
             }
@@ -302,11 +269,7 @@ impl RelayAgent {
                 // Something moved with the tilt: what stayed is stray light.
                 for (i, _) in stationary_pairs(&before.beams, &view.beams, steady) {
                     let p = before.beams[i].centre;
-                    if !self
-                        .stray
-                        .iter()
-                        .any(|(s, q)| *s == self.station && distance(*q, p) < STRAY_RADII * radius)
-                    {
+                    if !self.stray_near(p, STRAY_RADII * radius) {
                         self.stray.push((self.station, p));
                     }
                 }
@@ -316,18 +279,11 @@ impl RelayAgent {
         strongest(&candidates).copied()
     }
 
-    /// How far the current mirror was tilted since the cumulative tilts `then`, steps
-    /// (the longer axis's move).
-    fn swing_since(&self, then: &[i32; 8]) -> f64 {
-        let m = self.mirror;
-        (2 * m..2 * m + 2)
-            .map(|a| f64::from(self.cumulative[a] - then[a]).abs())
-            .fold(0.0, f64::max)
-    }
-
-    /// The longest probe a servo makes, steps: it moves a beam across any sensor.
-    fn longest_probe(&self) -> f64 {
-        self.probe_bounds()[1]
+    /// Whether stray light is known at this station within `within` px of `p`.
+    fn stray_near(&self, p: Vec2, within: f64) -> bool {
+        self.stray
+            .iter()
+            .any(|(s, q)| *s == self.station && distance(*q, p) < within)
     }
 
     /// The shortest and longest probe or step of a servo, steps: shares of the command
@@ -360,16 +316,11 @@ impl RelayAgent {
             }
             self.return_to = Some(throw.load);
         }
-        if rejected {
-            self.return_to = None;
-        }
-        if let Some(load) = self.return_to {
+        if let Some(load) = self.return_to.take().filter(|_| !rejected) {
             let view = View::of(self.backdrops.picture(self.station, frame));
             self.previous = Some((view, self.station, self.cumulative));
             let (tilt, arrives) = self.tilt_towards(load);
-            if arrives {
-                self.return_to = None;
-            }
+            self.return_to = (!arrives).then_some(load);
             return Some(self.act(tilt));
         }
         None
@@ -406,8 +357,7 @@ impl RelayAgent {
                 && best.is_none_or(|(s, _, _)| steps < s)
                 && steps * response >= 2.0 * size
             {
-                let mut step = [0.0; 2];
-                step[axis] = sign * steps;
+                let step = [0, 1].map(|a| if a == axis { sign * steps } else { 0.0 });
                 best = Some((steps, step, steps * response));
             }
         }
@@ -427,15 +377,16 @@ impl RelayAgent {
         mount.estimate_band();
     }
 
-    /// What the agent believes after its last decision, for the transcript: the mirror
-    /// and the stage it works on, where it saw the spot in the last frame (and at which
-    /// station), the response it steers by there, each mirror's lost motion, and C8's
-    /// placements.
+    /// What the agent believes after its last decision, for the transcript.
     pub fn claims(&self) -> serde_json::Value {
         let stage = match self.phase {
             Phase::Near => "near station",
             Phase::Far => "far station",
         };
+        // How far the average of C8's placements misses the centre, px (0 while unknown).
+        let average = self.placements_average(self.tilt_of(3));
+        let centre = self.previous.as_ref().map(|(view, _, _)| view.centre());
+        let miss = average.zip(centre).map_or(0.0, |(a, c)| distance(a, c));
         serde_json::json!({
             "phase": format!("M{} at its {stage}", self.mirror + 1),
             "imaged_at": format!("C{}", self.station + 1),
@@ -445,15 +396,10 @@ impl RelayAgent {
             "backdrops_at": self.backdrops.learned().map(|s| format!("C{}", s + 1)).collect::<Vec<_>>(),
             "c8_placements": {
                 "made": self.placements.len(),
-                "needed": self.placements_needed(self.placements_miss()),
-                "average_px": self.placements_average(self.tilt_of(3)),
+                "needed": self.placements_needed(miss),
+                "average_px": average,
             },
         })
-    }
-
-    /// The task's centring tolerance, px.
-    fn tolerance(&self) -> f64 {
-        self.limits.centred_tolerance_px
     }
 
     /// A servo for the current mirror at `station`, with a known response (the far
@@ -462,7 +408,6 @@ impl RelayAgent {
     /// the range.
     fn new_servo(&self, station: usize, gain: Option<[[f64; 2]; 2]>) -> Servo {
         let range = 2.0 * f64::from(self.limits.max_cumulative);
-        let bounds = self.probe_bounds();
         let side = self.image_side_px.or_else(|| {
             self.previous
                 .as_ref()
@@ -473,18 +418,15 @@ impl RelayAgent {
             (Some(response), Some(side)) => useful_probe(side, response),
             _ => RELAY_CAUTIOUS_SHARE * range,
         };
-        Servo::new(probe, bounds, gain)
+        Servo::new(probe, self.probe_bounds(), gain)
     }
 
     /// The servo of the current mirror's near station: it starts from the latest near
     /// response measured, as a guess, when there is one.
     fn new_near_servo(&self) -> Servo {
         let near_station = 2 * self.mirror;
-        let servo = self.new_servo(near_station, None);
-        match self.assumed_gain(near_station) {
-            Some(gain) => servo.assume(gain),
-            None => servo,
-        }
+        self.new_servo(near_station, None)
+            .assume(self.assumed_gain(near_station))
     }
 
     /// The latest near response measured, scaled to `station` by the stations' distances
@@ -504,11 +446,7 @@ impl RelayAgent {
             whole,
             signal: s.signal,
             // A cut spot's centroid is pulled in by up to its size.
-            scatter: if whole {
-                s.uncertainty.max(MIN_NOISE_PX)
-            } else {
-                s.size().max(MIN_NOISE_PX)
-            },
+            scatter: if whole { s.uncertainty } else { s.size() }.max(MIN_NOISE_PX),
         }
     }
 
@@ -526,18 +464,14 @@ impl RelayAgent {
         let near_station = 2 * self.mirror;
         if let Some(best) = self.near.best()
             && best.spot.whole
-            && distance(best.spot.at, centre) < NEAR_CENTRED_SHARE * self.tolerance()
+            && distance(best.spot.at, centre)
+                < NEAR_CENTRED_SHARE * self.limits.centred_tolerance_px
             && best.tilt == u
         {
             let gain = self.near.gain();
-            if let Some(g) = gain {
-                self.known_near = Some((g, near_station));
-            }
-            let far_gain = gain.zip(self.distances).map(|(g, d)| {
-                let ratio = d[near_station + 1] / d[near_station];
-                g.map(|row| row.map(|v| v * ratio))
-            });
-            self.far = self.new_servo(near_station + 1, far_gain);
+            self.known_near = gain.map(|g| (g, near_station)).or(self.known_near);
+            let scaled = self.assumed_gain(near_station + 1);
+            self.far = self.new_servo(near_station + 1, gain.and(self.distances).and(scaled));
             self.far_steps = 0;
             self.far_dark = 0;
             self.far_start = u;
@@ -550,7 +484,7 @@ impl RelayAgent {
         // Never seen here: search outwards around the start, wider each ring.
         self.search.add_missing(u);
         if self.search.missing.len() > 1 && self.nominal_response(2 * self.mirror).is_none() {
-            let widest = self.widest_search();
+            let widest = MAX_SEARCH_SHARE * f64::from(self.limits.max_cumulative);
             let probe = self.search.probe.map(|p| (p * SEARCH_GROWTH).min(widest));
             self.search.set_probe(probe);
         }
@@ -571,34 +505,31 @@ impl RelayAgent {
             // A new placement: what the servo saw in the last one is off by their difference.
             self.far = self.new_servo(7, self.far.gain());
         }
+        if let Some(s) = seen.filter(|s| s.whole && last) {
+            // Booked at C8 as where the spot showed whole in this placement (the latest).
+            if !std::mem::take(&mut self.placed) {
+                self.placements.pop();
+            }
+            self.placements.push((u, s.at));
+        }
         // Where the spot sits in this placement when the average of the placements is
         // centred, at C8 when the camera mover's repeatability calls for more than one;
         // elsewhere, the centre.
-        if let Some(s) = seen.filter(|s| s.whole && last) {
-            self.book_placement(u, s.at);
-        }
         let target = match seen.filter(|s| s.whole && last && self.placements_needed(0.0) > 1) {
             Some(s) => {
                 let average = self.placements_average(u).unwrap_or(s.at);
-                [
-                    centre[0] + s.at[0] - average[0],
-                    centre[1] + s.at[1] - average[1],
-                ]
+                [0, 1].map(|a| centre[a] + s.at[a] - average[a])
             }
             None => centre,
         };
         self.far.observe(u, seen, target, side);
-        let tolerance = if last {
-            DONE_SHARE * self.tolerance()
-        } else {
-            PASS_SHARE * self.tolerance()
-        };
+        let share = if last { DONE_SHARE } else { PASS_SHARE };
         // At C8 the spot must also be compact (a speckle cloud is no aligned beam).
         let compact = spot.is_some_and(|s| s.localised) || !last;
         if let Some(s) = seen
             && s.whole
             && compact
-            && distance(s.at, target) < tolerance
+            && distance(s.at, target) < share * self.limits.centred_tolerance_px
         {
             if !last {
                 self.next_mirror();
@@ -624,29 +555,16 @@ impl RelayAgent {
             Some(next) if self.far_steps <= MAX_FAR_STEPS => self.tilt_to(next),
             _ => {
                 self.phase = Phase::Near;
-                self.restart_near();
+                self.near = self.new_near_servo();
                 self.act(measure(2 * self.mirror))
             }
         }
     }
 
-    /// Books where the spot showed whole at load `u` in the current placement at C8.
-    fn book_placement(&mut self, u: Vec2, at: Vec2) {
-        if self.placed || self.placements.is_empty() {
-            self.placements.push((u, at));
-        } else if let Some(latest) = self.placements.last_mut() {
-            *latest = (u, at);
-        }
-        self.placed = false;
-    }
-
     /// Where the spot shows at load `u` on average over C8's placements (each carried to
-    /// `u` by C8's response), when the response is known.
+    /// `u` by C8's response), when there are any and the response is known.
     fn placements_average(&self, u: Vec2) -> Option<Vec2> {
-        if self.placements.is_empty() {
-            return None;
-        }
-        let gain = self.far.gain()?;
+        let gain = self.far.gain().filter(|_| !self.placements.is_empty())?;
         let n = self.placements.len() as f64;
         let sum = self
             .placements
@@ -666,17 +584,9 @@ impl RelayAgent {
             .placement_px
             .unwrap_or(0.0)
             .max(self.placements_spread());
-        let room = (self.tolerance() - miss).max(f64::EPSILON);
+        let room = (self.limits.centred_tolerance_px - miss).max(f64::EPSILON);
         let needed = chi2_quantile(DONE_CONFIDENCE) * (spread / room).powi(2);
         (needed.ceil() as usize).max(1)
-    }
-
-    /// How far the average of C8's placements misses the centre, px (0 while unknown).
-    fn placements_miss(&self) -> f64 {
-        let centre = self.previous.as_ref().map(|(view, _, _)| view.centre());
-        self.placements_average(self.tilt_of(3))
-            .zip(centre)
-            .map_or(0.0, |(average, centre)| distance(average, centre))
     }
 
     /// The camera mover's repeatability as C8's placements show it, px along the direction
@@ -707,16 +617,9 @@ impl RelayAgent {
         let gain = self.far.gain()?;
         let mut views = square_rings([0.0; 2], [1.0; 2], 1..=FAR_SEARCH_RINGS);
         views.sort_by(|a, b| a[0].hypot(a[1]).total_cmp(&b[0].hypot(b[1])));
-        let [i, j] = *views.get(self.far_dark - 1)?;
-        let offset = [
-            -i * FAR_SEARCH_OVERLAP * size[0],
-            -j * FAR_SEARCH_OVERLAP * size[1],
-        ];
-        let tilt = Affine {
-            offset: [0.0; 2],
-            gain,
-        }
-        .solve(offset)?;
+        let view = *views.get(self.far_dark - 1)?;
+        let offset = [0, 1].map(|a| -view[a] * FAR_SEARCH_OVERLAP * size[a]);
+        let tilt = Affine::linear(gain).solve(offset)?;
         Some([self.far_start[0] + tilt[0], self.far_start[1] + tilt[1]])
     }
 
@@ -725,13 +628,9 @@ impl RelayAgent {
     /// next steps confirm or refute.
     fn forget_sightings(&mut self) {
         let gain = self.servo().gain();
-        let guessed = |fresh: Servo| match gain {
-            Some(g) => fresh.assume(g),
-            None => fresh,
-        };
         match self.phase {
-            Phase::Near => self.near = guessed(self.new_near_servo()),
-            Phase::Far => self.far = guessed(self.new_servo(self.station, None)),
+            Phase::Near => self.near = self.new_near_servo().assume(gain),
+            Phase::Far => self.far = self.new_servo(self.station, None).assume(gain),
         }
     }
 
@@ -743,24 +642,18 @@ impl RelayAgent {
         }
     }
 
-    /// A new near servo for the current mirror.
-    fn restart_near(&mut self) {
-        self.near = self.new_near_servo();
-    }
-
     fn next_mirror(&mut self) {
         self.mirror += 1;
         self.phase = Phase::Near;
         self.search = self.new_search();
         self.near_start = self.tilt_of(self.mirror);
-        self.restart_near();
+        self.near = self.new_near_servo();
     }
 
     /// Tilts the current mirror's load to `target` (vertical, horizontal), with the
     /// command going past it by the lost motion, within bounds.
     fn tilt_to(&mut self, target: Vec2) -> RelayAction {
-        let (tilt, _) = self.tilt_towards(target);
-        self.act(tilt)
+        self.act(self.tilt_towards(target).0)
     }
 
     /// The tilt of [`Self::tilt_to`] (at most the longest allowed per axis), and whether
@@ -772,11 +665,7 @@ impl RelayAgent {
         let u = self.command_of(m);
         let command = self.mounts[m].command_to_load(target, u);
         let wanted = [0, 1].map(|a| command[a].clamp(-bound, bound) - u[a]);
-        let tilt = RelayAction::Tilt {
-            mirror: m as u8,
-            vertical: wanted[0].clamp(-step, step).round() as i32,
-            horizontal: wanted[1].clamp(-step, step).round() as i32,
-        };
+        let tilt = tilt_by(m, wanted.map(|w| w.clamp(-step, step).round()));
         (tilt, wanted.iter().all(|w| w.abs() <= step))
     }
 
@@ -812,12 +701,6 @@ impl RelayAgent {
             _ => {}
         }
     }
-}
-
-fn new_tracker(limits: &RelayLimits) -> Tracker {
-    let bound = f64::from(limits.max_cumulative);
-    let probe = RELAY_CAUTIOUS_SHARE * 2.0 * bound;
-    Tracker::new([probe, probe], [[-bound, bound], [-bound, bound]])
 }
 
 /// A mirror's tracker: commands within the range, a fit once they span the shortest probe.

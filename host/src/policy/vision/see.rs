@@ -62,14 +62,6 @@ pub struct Motion {
     pub to: Option<Seen>,
 }
 
-/// How far a stationary feature may seem to move between two frames, px: `steady` (the
-/// bench's jitter as measured so far) and three times the two centres' combined uncertainty.
-fn allowance(a: &Beam, b: &Beam, steady: f64) -> f64 {
-    steady
-        .max(3.0 * a.uncertainty.hypot(b.uncertainty))
-        .max(1.0)
-}
-
 /// Whether two detections can be the same feature (alike in size and light).
 pub fn alike(a: &Beam, b: &Beam) -> bool {
     let size = a.size().max(1.0) / b.size().max(1.0);
@@ -77,45 +69,38 @@ pub fn alike(a: &Beam, b: &Beam) -> bool {
     (0.5..2.0).contains(&size) && (0.33..3.0).contains(&light)
 }
 
+/// Whether the change `blob` lies inside one of `features` with less than `share` of its
+/// light: that feature's jitter, texture or flicker, not a beam that moved.
+pub fn residue<'a>(blob: &Beam, features: impl IntoIterator<Item = &'a Beam>, share: f64) -> bool {
+    features
+        .into_iter()
+        .any(|f| distance(blob.centre, f.centre) < f.size() && blob.signal < share * f.signal)
+}
+
 /// The beams of `before` and `after` paired as stationary features (index pairs), nearest
-/// first; the rest are unpaired.
+/// first; the rest are unpaired. A stationary feature may seem to move `steady` px (the
+/// bench's jitter as measured so far) or three times the two centres' combined uncertainty.
 pub fn stationary_pairs(before: &[Beam], after: &[Beam], steady: f64) -> Vec<(usize, usize)> {
     let mut candidates: Vec<(f64, usize, usize)> = Vec::new();
     for (i, a) in before.iter().enumerate() {
         for (j, b) in after.iter().enumerate() {
             let d = distance(a.centre, b.centre);
-            if d <= allowance(a, b, steady) && alike(a, b) {
+            let allowance = steady
+                .max(3.0 * a.uncertainty.hypot(b.uncertainty))
+                .max(1.0);
+            if d <= allowance && alike(a, b) {
                 candidates.push((d, i, j));
             }
         }
     }
     candidates.sort_by(|x, y| x.0.total_cmp(&y.0));
-    let (mut used_before, mut used_after) = (vec![false; before.len()], vec![false; after.len()]);
-    let mut pairs = Vec::new();
+    let mut pairs: Vec<(usize, usize)> = Vec::new();
     for (_, i, j) in candidates {
-        if !used_before[i] && !used_after[j] {
-            used_before[i] = true;
-            used_after[j] = true;
+        if !pairs.iter().any(|p| p.0 == i || p.1 == j) {
             pairs.push((i, j));
         }
     }
     pairs
-}
-
-/// Where a change shows in one view: the view's own detection that covers the change and
-/// did not stay put between the frames, nearest first; else only the change itself.
-fn locate(blob: &Beam, beams: &[Beam], moving: &[bool]) -> Seen {
-    let own = beams
-        .iter()
-        .zip(moving)
-        .filter(|(b, moving)| **moving && distance(b.centre, blob.centre) < blob.size() + b.size())
-        .map(|(b, _)| b)
-        .min_by(|a, b| distance(a.centre, blob.centre).total_cmp(&distance(b.centre, blob.centre)));
-    Seen {
-        beam: *own.unwrap_or(blob),
-        whole: own.is_some(),
-        change: *blob,
-    }
 }
 
 /// The beam that moved from `before` to `after`: found in the frames' difference (what
@@ -131,14 +116,8 @@ pub fn motion(
     expected: Option<Vec2>,
     avoid: Option<(Vec2, Vec2)>,
 ) -> Motion {
-    motion_in(
-        &changes(&before.picture, &after.picture),
-        before,
-        after,
-        steady,
-        expected,
-        avoid,
-    )
+    let moved = changes(&before.picture, &after.picture);
+    motion_in(&moved, before, after, steady, expected, avoid)
 }
 
 /// [`motion`] read from the views' difference `moved` (what [`changes`], or its registered
@@ -152,15 +131,6 @@ pub fn motion_in(
     avoid: Option<(Vec2, Vec2)>,
 ) -> Motion {
     let pairs = stationary_pairs(&before.beams, &after.beams, steady);
-    // A change inside a feature that stayed, with a small share of its light, is that
-    // feature's jitter or texture shifting, not a beam that moved.
-    let residue = |blob: &Beam, beams: &[Beam], side: fn(&(usize, usize)) -> usize| {
-        pairs.iter().map(side).any(|i| {
-            let stayed = &beams[i];
-            distance(blob.centre, stayed.centre) < stayed.size()
-                && blob.signal < SEE_RESIDUE_SHARE * stayed.signal
-        })
-    };
     // The changes that may be the moved beam on one side of the move: not residue of the
     // features that stayed there, and not the one nearest `avoid`'s place on that side.
     let candidates = |blobs: &[Beam],
@@ -170,12 +140,11 @@ pub fn motion_in(
      -> Vec<Beam> {
         let real: Vec<Beam> = blobs
             .iter()
-            .filter(|b| !residue(b, beams, side))
+            .filter(|b| !residue(b, pairs.iter().map(|p| &beams[side(p)]), SEE_RESIDUE_SHARE))
             .copied()
             .collect();
         let nearest_avoided = avoid.and_then(|p| {
-            real.iter()
-                .min_by(|a, b| distance(a.centre, p).total_cmp(&distance(b.centre, p)))
+            nearest(&real, p)
                 .filter(|b| distance(b.centre, p) < 2.0 * b.size())
                 .map(|b| b.centre)
         });
@@ -185,7 +154,11 @@ pub fn motion_in(
     };
     let appeared = candidates(&moved.appeared, &after.beams, |p| p.1, avoid.map(|a| a.1));
     let vanished = candidates(&moved.vanished, &before.beams, |p| p.0, avoid.map(|a| a.0));
-    let to = pick(&appeared, expected);
+    let to = match expected {
+        Some(point) => nearest(&appeared, point),
+        None => strongest(&appeared),
+    }
+    .copied();
     let from = match to {
         Some(t) => vanished
             .iter()
@@ -195,27 +168,32 @@ pub fn motion_in(
             .copied(),
         None => strongest(&vanished).copied(),
     };
-    let moving_before: Vec<bool> = (0..before.beams.len())
-        .map(|i| !pairs.iter().any(|p| p.0 == i))
-        .collect();
-    let moving_after: Vec<bool> = (0..after.beams.len())
-        .map(|j| !pairs.iter().any(|p| p.1 == j))
-        .collect();
     // Far apart, or come into the view or gone out of it, each change is the whole beam: a
     // detection there with much more light holds another beam too.
-    let apart = match (from, to) {
-        (Some(f), Some(t)) => distance(f.centre, t.centre) > 2.0 * f.size().max(t.size()),
-        _ => true,
-    };
-    let place = |blob: Beam, beams: &[Beam], moving: &[bool]| {
-        let mut seen = locate(&blob, beams, moving);
-        if apart && seen.whole && seen.beam.signal > MERGED_LIGHT * blob.signal {
-            seen.whole = false;
+    let apart = from
+        .zip(to)
+        .is_none_or(|(f, t)| distance(f.centre, t.centre) > 2.0 * f.size().max(t.size()));
+    // Where a change shows in one view: the view's own detection that covers the change and
+    // did not stay put between the frames, nearest first; else only the change itself.
+    let place = |blob: Beam, beams: &[Beam], side: fn(&(usize, usize)) -> usize| {
+        let covering: Vec<Beam> = beams
+            .iter()
+            .enumerate()
+            .filter(|&(i, b)| {
+                !pairs.iter().any(|p| side(p) == i)
+                    && distance(b.centre, blob.centre) < blob.size() + b.size()
+            })
+            .map(|(_, b)| *b)
+            .collect();
+        let own = nearest(&covering, blob.centre);
+        Seen {
+            beam: *own.unwrap_or(&blob),
+            whole: own.is_some_and(|b| !(apart && b.signal > MERGED_LIGHT * blob.signal)),
+            change: blob,
         }
-        seen
     };
-    let mut from = from.map(|b| place(b, &before.beams, &moving_before));
-    let mut to = to.map(|b| place(b, &after.beams, &moving_after));
+    let mut from = from.map(|b| place(b, &before.beams, |p| p.0));
+    let mut to = to.map(|b| place(b, &after.beams, |p| p.1));
     if let (Some(f), Some(t)) = (&mut from, &mut to)
         && f.whole
         && t.whole
@@ -229,14 +207,6 @@ pub fn motion_in(
         }
     }
     Motion { from, to }
-}
-
-fn pick(beams: &[Beam], expected: Option<Vec2>) -> Option<Beam> {
-    match expected {
-        Some(point) => nearest(beams, point),
-        None => strongest(beams),
-    }
-    .copied()
 }
 
 #[cfg(test)]

@@ -6,13 +6,11 @@
 //! sighting refutes, or whose step loses the spot or does no good, is dropped and probed
 //! again. docs/vision.md ("Guessed responses") gives the rules for probes and steps.
 
-use nalgebra::Matrix2;
-
-use super::bench::{Point, Response, STILL};
+use super::bench::{Point, Response, STILL, isotropic};
 use super::model::{Affine, Vec2, column_norm, distance};
 use super::tuning::{
-    CUT_PENALTY_SIDES, GAIN_PRIOR_SHARE, MIN_MOVE_SHARE, PRIOR_OFFSET_PX, SERVO_GROWTH,
-    SERVO_PROBE_VIEW_SHARE, START_RADIUS_PROBES,
+    CUT_PENALTY_SIDES, GAIN_PRIOR_SHARE, MIN_MOVE_SHARE, SERVO_GROWTH, SERVO_PROBE_VIEW_SHARE,
+    START_RADIUS_PROBES,
 };
 
 /// Where the spot showed.
@@ -54,10 +52,9 @@ pub struct Servo {
     best: Option<Best>,
     /// The bench model of the response, from the first sighting on.
     model: Option<Response>,
-    /// The response given beforehand, the model's prior at its first sighting.
-    given: Option<[[f64; 2]; 2]>,
-    /// The model's response can be steered by (given, or both axes probed).
-    known: bool,
+    /// The response the model started from (given beforehand, its prior at its first
+    /// sighting, or from probes of both axes); `None` while it is not steered by.
+    prior: Option<[[f64; 2]; 2]>,
     /// A step confirmed the model's response (or it was given as measured).
     confirmed: bool,
     /// Each axis was probed since the model last knew nothing.
@@ -69,8 +66,8 @@ pub struct Servo {
     /// Shortest and longest probe or step, steps.
     bounds: Vec2,
     pending: Pending,
-    /// The last tilt and spot seen.
-    last: Option<(Vec2, Spot)>,
+    /// The last tilt a spot was seen at.
+    last: Option<Vec2>,
     /// The most light a spot showed, for how much of a cut one shows.
     brightest: f64,
     /// The way the next round of probes first goes (+1, -1).
@@ -87,8 +84,7 @@ impl Servo {
         Self {
             best: None,
             model: None,
-            given: gain,
-            known: gain.is_some(),
+            prior: gain,
             confirmed: true,
             probed: [false; 2],
             cut: false,
@@ -103,13 +99,13 @@ impl Servo {
         }
     }
 
-    /// The same servo starting from a guess of the response (another mirror's, say), used
-    /// until a sighting refutes it.
-    pub fn assume(mut self, gain: [[f64; 2]; 2]) -> Self {
-        self.given = Some(gain);
-        self.model = None;
-        self.known = true;
-        self.confirmed = false;
+    /// The new servo starting from a guess of the response (another mirror's, say), when
+    /// there is one, used until a sighting refutes it.
+    pub fn assume(mut self, gain: Option<[[f64; 2]; 2]>) -> Self {
+        if gain.is_some() {
+            self.prior = gain;
+            self.confirmed = false;
+        }
         self
     }
 
@@ -119,12 +115,9 @@ impl Servo {
 
     /// The response steered by (px per step, columns per axis), once known.
     fn steering(&self) -> Option<[[f64; 2]; 2]> {
-        if !self.known {
-            return None;
-        }
         match &self.model {
-            Some(model) => model.mean(STILL).map(|m| m.gain),
-            None => self.given,
+            Some(model) if self.prior.is_some() => model.mean(STILL).map(|m| m.gain),
+            _ => self.prior,
         }
     }
 
@@ -133,26 +126,11 @@ impl Servo {
         self.steering().filter(|_| !self.cut)
     }
 
-    /// Forgets a response that proved wrong: the next commands probe again from the best
-    /// tilt, with probes that would move the spot a useful share of the image at its scale.
-    fn forget_gain(&mut self, side: f64) {
-        if let Some(gain) = self.steering() {
-            self.probe = useful_probe(side, column_norm(gain).max(1e-9))
-                .clamp(self.bounds[0], self.bounds[1]);
-        }
-        self.drop_gain();
-    }
-
     /// Drops the response: the model knows nothing but the best sighting, and the next
     /// commands probe both axes again from the best tilt.
     fn drop_gain(&mut self) {
-        self.given = None;
-        self.model = self.best.map(|best| {
-            let mut model = Response::broad(best.tilt);
-            model.add(point(best.tilt, &best.spot), noise(&best.spot));
-            model
-        });
-        self.known = false;
+        self.prior = None;
+        self.model = self.best.map(|b| model_through(b.tilt, &b.spot, None));
         self.confirmed = true;
         self.probed = [false; 2];
         self.cut = false;
@@ -174,25 +152,12 @@ impl Servo {
     /// model built on it, with the given response as its prior, when there is none yet);
     /// whether it was believed.
     fn learn(&mut self, tilt: Vec2, s: &Spot) -> bool {
-        let r = noise(s);
+        let r = isotropic(s.scatter);
         let Some(model) = &mut self.model else {
-            let mut model = match self.given {
-                Some(gain) => {
-                    let prior = Affine {
-                        offset: [0.0; 2],
-                        gain,
-                    }
-                    .anchored(tilt, s.at);
-                    let spread = GAIN_PRIOR_SHARE * column_norm(gain);
-                    Response::with_prior(tilt, prior, PRIOR_OFFSET_PX, spread)
-                }
-                None => Response::broad(tilt),
-            };
-            model.add(point(tilt, s), r);
-            self.model = Some(model);
+            self.model = Some(model_through(tilt, s, self.prior.map(Affine::linear)));
             return true;
         };
-        if self.known && !model.believes(point(tilt, s), r) {
+        if self.prior.is_some() && !model.believes(point(tilt, s), r) {
             return false;
         }
         model.add(point(tilt, s), r);
@@ -200,28 +165,20 @@ impl Servo {
     }
 
     /// The probes of both axes showed the response: it becomes the prior of a model
-    /// through the latest sighting `s` at `tilt`, believed to within [`GAIN_PRIOR_SHARE`]
-    /// (a mount's response changes across its range, which later steps must be free to
-    /// correct).
+    /// through the latest sighting `s` at `tilt`.
     fn probes_done(&mut self, tilt: Vec2, s: &Spot) {
         let Some(mean) = self.model.as_ref().and_then(|m| m.mean(STILL)) else {
             return;
         };
-        let spread = GAIN_PRIOR_SHARE * column_norm(mean.gain);
-        let mut model =
-            Response::with_prior(tilt, mean.anchored(tilt, s.at), PRIOR_OFFSET_PX, spread);
-        model.add(point(tilt, s), noise(s));
-        self.model = Some(model);
-        self.known = true;
+        self.model = Some(model_through(tilt, s, Some(mean)));
+        self.prior = Some(mean.gain);
         self.confirmed = !self.cut;
     }
 
     /// Learns from what the last command showed at `tilt` (`seen`: where the spot is, if it
     /// shows), for `target` on an image whose shorter side is `side`.
     pub fn observe(&mut self, tilt: Vec2, seen: Option<Spot>, target: Vec2, side: f64) {
-        if let Some(s) = seen {
-            self.brightest = self.brightest.max(s.signal);
-        }
+        self.brightest = seen.map_or(self.brightest, |s| self.brightest.max(s.signal));
         if let Some(best) = self.best {
             // The yardstick of cut spots may have grown since.
             let error = self.error(&best.spot, target, side);
@@ -256,15 +213,12 @@ impl Servo {
                 self.probed[axis] = true;
                 self.cut |= !(s.whole && best.spot.whole);
             }
-            if self.probed == [true; 2] && !self.known {
+            if self.probed == [true; 2] && self.prior.is_none() {
                 self.probes_done(tilt, &s);
             }
         }
-        let better = match (seen.map(|s| self.error(&s, target, side)), self.best) {
-            (Some(e), Some(best)) => e < best.error,
-            (Some(_), None) => true,
-            (None, _) => false,
-        };
+        let error = seen.map(|s| self.error(&s, target, side));
+        let better = error.is_some_and(|e| self.best.is_none_or(|best| e < best.error));
         if self.pending == Pending::Step && !self.confirmed {
             // A response on trial: a whole sighting it predicted confirms it; one it did
             // not, a lost spot or a step that did no good refutes it.
@@ -275,15 +229,19 @@ impl Servo {
                 }
                 Some(_) if believed && better => {}
                 _ => {
-                    self.forget_gain(side);
+                    // Next probes: a useful share of the image at the refuted response's scale.
+                    if let Some(gain) = self.steering() {
+                        self.probe = useful_probe(side, column_norm(gain).max(1e-9))
+                            .clamp(self.bounds[0], self.bounds[1]);
+                    }
+                    self.drop_gain();
                     if let Some(s) = seen {
                         self.learn(tilt, &s);
                     }
                 }
             }
         }
-        if let (true, Some(spot)) = (better, seen) {
-            let error = self.error(&spot, target, side);
+        if let (true, Some(spot), Some(error)) = (better, seen, error) {
             self.best = Some(Best { tilt, spot, error });
             if self.pending == Pending::Step {
                 self.radius = (self.radius * SERVO_GROWTH).min(self.bounds[1]);
@@ -291,9 +249,7 @@ impl Servo {
         } else if self.pending == Pending::Step {
             self.radius = (self.radius / SERVO_GROWTH).max(self.bounds[0]);
         }
-        if let Some(s) = seen {
-            self.last = Some((tilt, s));
-        }
+        self.last = seen.map(|_| tilt).or(self.last);
     }
 
     /// The next tilt: a probe of an axis whose response is not known yet, or a Newton step
@@ -328,13 +284,10 @@ impl Servo {
                 .solve(target)?;
                 let length = step[0].hypot(step[1]);
                 let scale = (self.radius / length.max(1e-9)).min(1.0);
-                let proposal = [
-                    best.tilt[0] + step[0] * scale,
-                    best.tilt[1] + step[1] * scale,
-                ];
+                let proposal = [0, 1].map(|a| best.tilt[a] + step[a] * scale);
                 // The tilt just looked at, to within a step, where the caller found the spot
                 // off the target: the response cannot get it any closer.
-                let standing_still = self.last.is_some_and(|(tilt, _)| {
+                let standing_still = self.last.is_some_and(|tilt| {
                     (tilt[0] - proposal[0]).abs() < 1.0 && (tilt[1] - proposal[1]).abs() < 1.0
                 });
                 if (length < self.bounds[0] && !best.spot.whole) || standing_still {
@@ -369,6 +322,21 @@ pub fn useful_probe(side: f64, response: f64) -> f64 {
     SERVO_PROBE_VIEW_SHARE * side / response
 }
 
+/// A model through spot `s` seen at `tilt`: about `prior` (its response believed to within
+/// [`GAIN_PRIOR_SHARE`]: a mount's response changes across its range, which later steps must
+/// be free to correct), else knowing nothing more.
+fn model_through(tilt: Vec2, s: &Spot, prior: Option<Affine>) -> Response {
+    let mut model = match prior {
+        Some(prior) => {
+            let spread = GAIN_PRIOR_SHARE * column_norm(prior.gain);
+            Response::with_prior(tilt, prior.anchored(tilt, s.at), spread)
+        }
+        None => Response::broad(tilt),
+    };
+    model.add(point(tilt, s), isotropic(s.scatter));
+    model
+}
+
 /// Spot `s` seen at `tilt`, as the bench model takes it: with no dead band (the mount's
 /// tracker takes it off the tilts).
 fn point(tilt: Vec2, s: &Spot) -> Point {
@@ -377,11 +345,6 @@ fn point(tilt: Vec2, s: &Spot) -> Point {
         dir: STILL,
         image: s.at,
     }
-}
-
-/// The covariance of a sighting's centre, px².
-fn noise(s: &Spot) -> Matrix2<f64> {
-    Matrix2::identity() * s.scatter * s.scatter
 }
 
 #[cfg(test)]
@@ -501,7 +464,7 @@ mod tests {
         let (probed, _) = run(&bench, 1875.0);
         // Another mirror's response, a fifth off: no probes, so fewer steps.
         let near = gain.map(|row| row.map(|v| 1.2 * v));
-        let (guessed, _) = run_servo(&bench, servo().assume(near));
+        let (guessed, _) = run_servo(&bench, servo().assume(Some(near)));
         assert!(
             guessed < probed,
             "{guessed} steps with the guess, {probed} probing"
@@ -509,7 +472,7 @@ mod tests {
         // A guess with an axis the wrong way round and one turned a right angle: both are
         // refuted by the spot and the servo probes its way to the centre.
         for wrong in [[[0.0, 0.03], [0.025, 0.0]], [[0.025, 0.0], [0.0, 0.03]]] {
-            let (steps, at) = run_servo(&bench, servo().assume(wrong));
+            let (steps, at) = run_servo(&bench, servo().assume(Some(wrong)));
             assert!(steps <= probed + 4, "{wrong:?}: {steps} steps, at {at:?}");
         }
     }

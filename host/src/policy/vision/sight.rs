@@ -8,7 +8,7 @@
 //! is this beam at all is the bench model's chi-square test, not a rule of size.
 
 use super::model::{Sighting, Vec2, distance};
-use super::see::View;
+use super::see::{View, stationary_pairs};
 use super::tuning::{
     CLEAR_OF_BORDER_RADII, DEFAULT_RADIUS_SHARE, DEFAULT_STEADY_RADII, FIT_SIZE_RATIO,
     MAX_EXTRAPOLATION, MAX_MISFIT, MIN_NOISE_PX, OVERLAP_RADII, STEADY_SPREAD,
@@ -35,16 +35,11 @@ impl Scales {
     pub fn learn_view(&mut self, view: &View) {
         let [w, h] = view.size();
         self.side = w.min(h);
-        let radii: Vec<f64> = view.beams.iter().map(Beam::size).collect();
-        if let Some(r) = median(radii)
-            && self.typical.is_none()
-        {
-            self.typical = Some(r);
+        if self.typical.is_none() {
+            self.typical = median(view.beams.iter().map(Beam::size).collect());
         }
-        let spreads: Vec<f64> = view.beams.iter().map(|b| b.uncertainty).collect();
-        if let Some(u) = median(spreads) {
-            self.uncertainty = Some(u);
-        }
+        let spreads = view.beams.iter().map(|b| b.uncertainty).collect();
+        self.uncertainty = median(spreads).or(self.uncertainty);
     }
 
     /// Learns the size of feature `k` from a clean sighting.
@@ -53,20 +48,26 @@ impl Scales {
     }
 
     /// Learns the size of feature `k` from a clean sighting of the whole beam in `view`,
-    /// when it lies clear of the border: beside it, the spot may be one lobe of a beam whose
-    /// node lies on the border (nothing cut shows), much smaller than the beam.
+    /// when it lies [`CLEAR_OF_BORDER_RADII`] of its major radii clear of every border:
+    /// beside one, the spot may be one lobe of a beam whose node lies on the border (nothing
+    /// cut shows), much smaller than the beam.
     pub fn learn_shape(&mut self, k: usize, beam: &Beam, view: &View) {
-        if clear_of_border(beam, view) {
+        let margin = CLEAR_OF_BORDER_RADII * beam.radii[0];
+        let size = view.size();
+        if (0..2).all(|a| beam.centre[a] >= margin && size[a] - beam.centre[a] >= margin) {
             self.learn_size(k, beam.size());
         }
     }
 
-    /// Learns the jitter from the displacement of features that stayed between two views.
-    pub fn learn_steady(&mut self, pairs: &[(usize, usize)], before: &[Beam], after: &[Beam]) {
-        for &(i, j) in pairs {
+    /// Pairs the features that stayed between two views ([`stationary_pairs`]) and learns
+    /// the jitter from their displacement.
+    pub fn learn_steady(&mut self, before: &View, after: &View) -> Vec<(usize, usize)> {
+        let pairs = stationary_pairs(&before.beams, &after.beams, self.steady());
+        for &(i, j) in &pairs {
             self.steady
-                .push(distance(before[i].centre, after[j].centre));
+                .push(distance(before.beams[i].centre, after.beams[j].centre));
         }
+        pairs
     }
 
     /// The radius of feature `k`, px: measured, else the other feature's, else the
@@ -92,25 +93,22 @@ impl Scales {
 
     /// How far a stationary feature may seem to move between two frames, px.
     pub fn steady(&self) -> f64 {
-        let default = DEFAULT_STEADY_RADII * self.radius(0).min(self.radius(1));
         match self.jitter() {
             Some(rms) => (STEADY_SPREAD * rms).max(1.0),
-            None => default,
+            None => DEFAULT_STEADY_RADII * self.radius(0).min(self.radius(1)),
         }
     }
 
-    /// The scatter of one measured centre, px: the jitter of one frame (the RMS
-    /// displacement between two frames over √2) and the detector's own uncertainty.
-    pub fn position_noise(&self) -> f64 {
+    /// The position noise a map fitted to sightings allows for, px: the scatter of one
+    /// measured centre, from the jitter of one frame (the RMS displacement between two frames
+    /// over √2) and the detector's own uncertainty, at least [`MIN_NOISE_PX`].
+    pub fn model_noise(&self) -> f64 {
         let jitter = self
             .jitter()
             .map_or(0.0, |rms| rms / std::f64::consts::SQRT_2);
-        jitter.hypot(self.uncertainty.unwrap_or(0.0))
-    }
-
-    /// The position noise a map fitted to sightings allows for, px.
-    pub fn model_noise(&self) -> f64 {
-        self.position_noise().max(MIN_NOISE_PX)
+        jitter
+            .hypot(self.uncertainty.unwrap_or(0.0))
+            .max(MIN_NOISE_PX)
     }
 
     /// What the agent learned about the bench, for the transcript.
@@ -121,14 +119,6 @@ impl Scales {
             "steady_allowance_px": self.steady(),
         })
     }
-}
-
-/// Whether `beam` lies [`CLEAR_OF_BORDER_RADII`] of its major radii from every border of
-/// `view`: what shows is all of it, not a lobe or an arc of a beam going on beyond.
-fn clear_of_border(beam: &Beam, view: &View) -> bool {
-    let margin = CLEAR_OF_BORDER_RADII * beam.radii[0];
-    let size = view.size();
-    (0..2).all(|a| beam.centre[a] >= margin && size[a] - beam.centre[a] >= margin)
 }
 
 /// How `beam`, taken for feature `k`, serves the model: clean when whole, compact and clear
