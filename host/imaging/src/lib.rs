@@ -2,7 +2,7 @@
 //! light above its background ([`Picture`]), that light without what stays put at a camera
 //! place ([`Backdrop`]), the beams in it ([`find_beams`]), the centre of a beam's bright
 //! core ([`core_centre`], [`core_radius`]), and what changed between two frames
-//! ([`changes`], [`registered_changes`] when the stationary scene shifted, by as much as a
+//! ([`changes()`], [`registered_changes`] when the stationary scene shifted, by as much as a
 //! bright beam's core moved: [`scene_shift`]).
 
 mod backdrop;

@@ -110,9 +110,9 @@ pub(crate) const MIN_SIGNIFICANCE: f64 = 8.0;
 /// Blocks above this share of a region's peak are its core.
 pub(crate) const CORE_SHARE: f32 = 0.2;
 
-/// A core found by [`Grid::split`] counts only when its peak stands this many noise
-/// deviations of a smoothed block above the core level: in heavy noise the level's contour
-/// breaks into islands that are one beam.
+/// A core found when a region is split at its cores (`Grid::split` in beams.rs) counts
+/// only when its peak stands this many noise deviations of a smoothed block above the core
+/// level: in heavy noise the level's contour breaks into islands that are one beam.
 pub(crate) const CORE_PROMINENCE_NOISES: f32 = 5.0;
 
 /// Two regions are one beam when their cores are nearer than this share of the distance
