@@ -470,6 +470,8 @@ impl RelayAgent {
         {
             let gain = self.near.gain();
             self.known_near = gain.map(|g| (g, near_station)).or(self.known_near);
+            // The far servo starts from the response just measured here, scaled to the far
+            // station by the stations' distances, when both are known.
             let scaled = self.assumed_gain(near_station + 1);
             self.far = self.new_servo(near_station + 1, gain.and(self.distances).and(scaled));
             self.far_steps = 0;
