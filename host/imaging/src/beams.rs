@@ -851,26 +851,29 @@ fn window_footprint(
         centre,
         half,
     };
-    // Up to 20 steps to the window's centroid, then the moments about the final centre.
-    let (mut steps, mut settled) = (0, false);
-    let (m, mean) = loop {
+    for _ in 0..20 {
         let m = window_moments(&window(centre, half));
         if m.s <= 0.0 {
             return None;
         }
-        let mean = [m.sx / m.s, m.sy / m.s];
-        centre = [centre[0] + mean[0], centre[1] + mean[1]];
-        if settled {
-            break (m, mean);
+        let shift = [m.sx / m.s, m.sy / m.s];
+        centre = [centre[0] + shift[0], centre[1] + shift[1]];
+        let var = [
+            (m.sxx / m.s - shift[0].powi(2)).max(MIN_MOMENT_VARIANCE_PX2),
+            (m.syy / m.s - shift[1].powi(2)).max(MIN_MOMENT_VARIANCE_PX2),
+        ];
+        half = var.map(half_for);
+        if shift[0].hypot(shift[1]) < SETTLED_PX {
+            break;
         }
-        half = [
-            (m.sxx / m.s - mean[0].powi(2)).max(MIN_MOMENT_VARIANCE_PX2),
-            (m.syy / m.s - mean[1].powi(2)).max(MIN_MOMENT_VARIANCE_PX2),
-        ]
-        .map(half_for);
-        steps += 1;
-        settled = steps == 20 || mean[0].hypot(mean[1]) < SETTLED_PX;
-    };
+    }
+    // Moments about the final centre.
+    let m = window_moments(&window(centre, half));
+    if m.s <= 0.0 {
+        return None;
+    }
+    let mean = [m.sx / m.s, m.sy / m.s];
+    let centre = [centre[0] + mean[0], centre[1] + mean[1]];
     let cxx = m.sxx / m.s - mean[0].powi(2);
     let cyy = m.syy / m.s - mean[1].powi(2);
     let cxy = m.sxy / m.s - mean[0] * mean[1];

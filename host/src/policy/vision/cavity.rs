@@ -143,7 +143,7 @@ impl CavityAgent {
     /// rings assumed shows the secondary only in a patch of commands smaller than their
     /// spacing, anywhere in the range, not only near the start.
     fn search(&self) -> Vec2 {
-        let spans = self.tracker.range.map(|r| r[1] - r[0]);
+        let spans = self.tracker.spans();
         let step = spans.map(|s| CAVITY_SEARCH_SHARE * s);
         let untried = |u: Vec2, spacing: Vec2| {
             !self
@@ -226,7 +226,7 @@ impl CavityAgent {
         let vanished = moved.from.filter(|s| {
             outside(s) && like_secondary(s) && appeared.is_none_or(|a| alike(&a.change, &s.change))
         });
-        let spans = self.tracker.range.map(|r| r[1] - r[0]);
+        let spans = self.tracker.spans();
         let [lo, hi] = CAVITY_PROBE_SHARES.map(|share| share * spans[0].min(spans[1]));
         if let (Some(a), Some(v)) = (appeared, vanished)
             && distance(a.beam.centre, v.beam.centre)

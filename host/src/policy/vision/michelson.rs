@@ -71,8 +71,6 @@ pub struct MichelsonAgent {
     refuted: [bool; 2],
     /// What the images taught about this bench: beam sizes, jitter.
     scales: Scales,
-    /// The shorter command span of each mirror's two axes, steps.
-    spans: [f64; 2],
     /// A beam the last search showed, not yet told whose.
     appeared: Option<Beam>,
     /// Where the features that stayed put through the last probe are, px.
@@ -101,7 +99,6 @@ impl MichelsonAgent {
             tolerance: limits.success_error_px,
             refuted: [false; 2],
             scales: Scales::default(),
-            spans: [0, 2].map(|a| spans[a].min(spans[a + 1])),
             appeared: None,
             stayed: Vec::new(),
         }
@@ -250,7 +247,7 @@ impl MichelsonAgent {
         if step < SAME_STEP {
             return;
         }
-        let span = self.spans[k];
+        let span = self.shorter_span(k);
         let [lo, hi] = MICHELSON_PROBE_SHARES.map(|share| share * span);
         let probe = self.trackers[k].probe;
         let scaled = |factor: f64| probe.map(|p| (p * factor).clamp(lo, hi));
@@ -490,7 +487,7 @@ impl MichelsonAgent {
             return;
         }
         let wanted = self.useful_move(k, size);
-        let [lo, hi] = MICHELSON_PROBE_SHARES.map(|share| share * self.spans[k]);
+        let [lo, hi] = MICHELSON_PROBE_SHARES.map(|share| share * self.shorter_span(k));
         let probe = [0, 1].map(|axis| {
             let response = known.gain[0][axis].hypot(known.gain[1][axis]);
             (wanted / response.max(1e-9)).clamp(lo, hi)
@@ -538,6 +535,12 @@ impl MichelsonAgent {
     /// Whether mirror `k`'s beam was ever seen, clean or partly.
     fn sighted(&self, k: usize) -> bool {
         self.trackers[k].latest().is_some()
+    }
+
+    /// The shorter command span of mirror `k`'s two axes, steps.
+    fn shorter_span(&self, k: usize) -> f64 {
+        let [a, b] = self.trackers[k].spans();
+        a.min(b)
     }
 
     /// Moves mirror `k` to `u` and the other mirror to the next point of its own search,

@@ -611,6 +611,11 @@ impl Tracker {
         seen.chain(&self.missing).any(near)
     }
 
+    /// The width of the permitted range per axis, steps.
+    pub fn spans(&self) -> Vec2 {
+        self.range.map(|r| r[1] - r[0])
+    }
+
     /// Clamps a command into the permitted range.
     pub fn clamp(&self, command: Vec2) -> Vec2 {
         [0, 1].map(|a| command[a].clamp(self.range[a][0], self.range[a][1]))

@@ -114,6 +114,7 @@ impl RelayAgent {
             station: 7,
             mirror: 0,
             phase: Phase::Near,
+            // Set from the bench below (`new_search`).
             search: Tracker::new([1.0; 2], [[0.0; 2]; 2]),
             near_start: [0.0; 2],
             near: Servo::new(1.0, [1.0, 1.0], None),
@@ -155,11 +156,16 @@ impl RelayAgent {
             .zip(self.image_side_px)
         {
             Some((response, side)) => {
-                (RELAY_SEARCH_GRID_SHARE * side / response).clamp(1.0, MAX_SEARCH_SHARE * bound)
+                (RELAY_SEARCH_GRID_SHARE * side / response).clamp(1.0, self.widest_search())
             }
             None => RELAY_CAUTIOUS_SHARE * 2.0 * bound,
         };
         Tracker::new([probe, probe], [[-bound, bound], [-bound, bound]])
+    }
+
+    /// The longest search probe, steps.
+    fn widest_search(&self) -> f64 {
+        MAX_SEARCH_SHARE * f64::from(self.limits.max_cumulative)
     }
 
     /// Where mirror `m`'s load is (vertical, horizontal), steps.
@@ -486,7 +492,7 @@ impl RelayAgent {
         // Never seen here: search outwards around the start, wider each ring.
         self.search.add_missing(u);
         if self.search.missing.len() > 1 && self.nominal_response(2 * self.mirror).is_none() {
-            let widest = MAX_SEARCH_SHARE * f64::from(self.limits.max_cumulative);
+            let widest = self.widest_search();
             let probe = self.search.probe.map(|p| (p * SEARCH_GROWTH).min(widest));
             self.search.set_probe(probe);
         }
