@@ -1,7 +1,7 @@
 //! The image-only "vision" policy: beam detection on rendered frames (sub-pixel centroids,
 //! speckle against a spot, stationary artefacts cancelling in frame differences) and short
 //! end-to-end runs, judged by the hidden truth: one per task with its claims checked, another
-//! camera, and the relay learning the lost motion of uncompensated backlash.
+//! camera, and the relay through uncompensated backlash.
 //!
 //! Success rates belong to the bench, not here: the starts that once failed (responses a
 //! quarter and four times the default, uncompensated backlash on the Michelson and the
@@ -186,24 +186,8 @@ async fn the_vision_agent_aligns_the_cavity_and_its_claims_match_the_truth() {
 async fn the_vision_agent_aligns_the_relay() {
     // Seed 3 starts with the beam at C3 as a large speckle cloud cut by the sensor's edge,
     // whose centroid misleads the first response fit.
-    let dir = tempfile::tempdir().unwrap();
-    let summary = run_into(TaskKind::Relay, 3, Some(dir.path().to_path_buf())).await;
+    let summary = run_into(TaskKind::Relay, 3, None).await;
     assert!(summary.success && summary.declared_done, "{summary:?}");
-    // The default mounts' backlash is compensated by the controller: no lost motion is
-    // learned where there is none.
-    let band = largest_lost_motion(&transcript_steps(dir.path()));
-    assert!(band < 50.0, "{band} steps of lost motion");
-}
-
-/// The widest dead band the relay agent claims to have learned on any axis, steps.
-fn largest_lost_motion(steps: &[serde_json::Value]) -> f64 {
-    let last = &steps.last().unwrap()["claims"]["lost_motion_steps"];
-    last.as_array()
-        .unwrap()
-        .iter()
-        .flat_map(|mirror| mirror.as_array().unwrap().iter())
-        .map(|band| band.as_f64().unwrap())
-        .fold(0.0, f64::max)
 }
 
 #[tokio::test]
@@ -227,20 +211,13 @@ async fn the_vision_agent_aligns_every_task_on_a_1280_by_720_camera() {
 }
 
 #[tokio::test]
-async fn the_relay_agent_learns_300_steps_of_uncompensated_backlash_and_aligns() {
-    // The relay learns the band per mirror from its servo's reversals: seed 0 once spent its
-    // budget probing again and again a spot the band held 20 px from the centre of C1.
+async fn the_relay_agent_aligns_through_300_steps_of_uncompensated_backlash() {
+    // The relay models no dead band: a step that a reversal leaves short is absorbed by the
+    // servo's trust region (seed 0 once spent its budget probing again and again a spot the
+    // band held 20 px from the centre of C1).
     let scenario = Knob::Backlash
         .apply(&ScenarioFile::default(), 300.0)
         .expect("a valid backlash");
-    let dir = tempfile::tempdir().unwrap();
-    let summary = run_on(TaskKind::Relay, 0, scenario, Some(dir.path().to_path_buf())).await;
+    let summary = run_on(TaskKind::Relay, 0, scenario, None).await;
     assert!(summary.success && summary.declared_done, "{summary:?}");
-    // 300 steps of backlash less the controller's 30 of compensation: what the agent learned
-    // is of that size, not more.
-    let band = largest_lost_motion(&transcript_steps(dir.path()));
-    assert!(
-        (150.0..=350.0).contains(&band),
-        "{band} steps of lost motion"
-    );
 }

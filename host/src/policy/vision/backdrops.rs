@@ -33,8 +33,8 @@ pub struct Throw {
     place: usize,
     spot: Beam,
     before: Frame,
-    /// Where the mount's load was before the throw, to go back to.
-    pub load: Vec2,
+    /// The mount's command before the throw, to go back to.
+    pub tilt: Vec2,
     /// The command of one throw, steps per axis, and how many were made.
     pub step: Vec2,
     pub made: usize,
@@ -128,13 +128,13 @@ impl Backdrops {
     }
 
     /// Starts a throw of `step` (moving the spot `reach` px) at `place` from the frame
-    /// `before` (showing `spot`), the load at `load`.
+    /// `before` (showing `spot`), the mount at `tilt`.
     pub fn throw(
         &mut self,
         place: usize,
         before: &Frame,
         spot: Beam,
-        load: Vec2,
+        tilt: Vec2,
         (step, reach): (Vec2, f64),
     ) -> Throw {
         self.places[place].tried = true;
@@ -142,7 +142,7 @@ impl Backdrops {
             place,
             spot,
             before: before.clone(),
-            load,
+            tilt,
             step,
             made: 1,
             reach,

@@ -238,8 +238,6 @@ pub struct Tracker {
     /// The axes whose sightings showed a dead band the controller does not compensate
     /// ([`Self::estimate_band`]): only on these does the model fit one.
     band: [bool; 2],
-    /// Half the dead band per axis as a map whose sightings were forgotten showed it, steps.
-    remembered_half_band: Vec2,
     /// The scatter of one measured position, px (set by the agent from what it measured).
     pub noise: f64,
     /// Sightings made so far (clean and partial), for their order.
@@ -264,7 +262,6 @@ impl Tracker {
             previous_dir: [0.0; 2],
             current: None,
             band: [false; 2],
-            remembered_half_band: [0.0; 2],
             noise: 1.0,
             made: 0,
             lost_at: None,
@@ -298,80 +295,24 @@ impl Tracker {
         on_axes(self.heading(from, command), self.band)
     }
 
-    /// Half the dead band of each axis, steps: how far the load trails the motor after a
-    /// move. On a banded axis, from the bench model; after the sightings of an earlier map
-    /// were forgotten, what that map showed until the new one holds enough sightings to pin
-    /// the band again ([`BAND_MIN_SIGHTINGS`]).
-    fn half_band(&self) -> Vec2 {
-        let fitted = self.fitted_half_band();
-        [0, 1].map(|a| match fitted {
-            Some(half) if self.band[a] => half[a],
-            _ => self.remembered_half_band[a],
-        })
-    }
-
-    /// Half the dead band of each axis as the bench model fits it, steps; `None` while no
-    /// axis is banded, or too few sightings pin it where an earlier map showed a band.
-    fn fitted_half_band(&self) -> Option<Vec2> {
-        if self.band == [false; 2] {
-            return None;
-        }
-        let fit = self.response()?;
-        if self.remembered_half_band != [0.0; 2] && fit.kept.len() < BAND_MIN_SIGHTINGS {
-            return None;
-        }
-        let (gain, shift) = fit.response.gain_and_band()?;
+    /// Motion lost when an axis reverses, steps: on an axis whose sightings showed a dead
+    /// band, its width as the bench model fits it; 0 on the others.
+    pub fn lost(&self) -> Vec2 {
+        let fitted = (self.band != [false; 2])
+            .then(|| self.response())
+            .flatten()
+            .and_then(|fit| fit.response.gain_and_band());
+        let Some((gain, shift)) = fitted else {
+            return [0.0; 2];
+        };
         let unit = Affine::linear(gain);
         // The shift after a move the positive way is the gain times minus half the band.
-        Some([0, 1].map(|a| {
-            unit.solve([shift[0][a], shift[1][a]])
-                .map_or(0.0, |steps| (-steps[a]).max(0.0))
-        }))
-    }
-
-    /// Motion lost when an axis reverses, steps, as estimated from the sightings.
-    pub fn lost(&self) -> Vec2 {
-        self.half_band().map(|h| 2.0 * h)
-    }
-
-    /// The command that puts the load at `target` from the command `current` (the one last
-    /// booked by [`Self::moved`]): an axis whose load must move (by more than
-    /// [`SAME_STEP`]) goes past the target by half the lost motion on the side it
-    /// approaches from; one already there stays.
-    pub fn command_to_load(&self, target: Vec2, current: Vec2) -> Vec2 {
-        let half = self.half_band();
-        let load = self.load_with(half).unwrap_or(current);
         [0, 1].map(|a| {
-            if target[a] > load[a] + SAME_STEP {
-                target[a] + half[a]
-            } else if target[a] < load[a] - SAME_STEP {
-                target[a] - half[a]
-            } else {
-                current[a]
-            }
+            let half = unit
+                .solve([shift[0][a], shift[1][a]])
+                .map_or(0.0, |steps| (-steps[a]).max(0.0));
+            if self.band[a] { 2.0 * half } else { 0.0 }
         })
-    }
-
-    /// Forgets every sighting (the feature is seen from elsewhere now, through another
-    /// map), keeping which axes show a dead band and how wide it is.
-    pub fn forget_sightings(&mut self) {
-        self.remembered_half_band = self.half_band();
-        self.clean.clear();
-        self.partial.clear();
-        self.missing.clear();
-        self.lost_at = None;
-    }
-
-    /// Where the load sits now: the motor's command less half the band the way it last
-    /// moved; `None` before the first move.
-    pub fn load(&self) -> Option<Vec2> {
-        self.load_with(self.half_band())
-    }
-
-    /// [`Self::load`] for a band of `half` steps each side.
-    fn load_with(&self, half: Vec2) -> Option<Vec2> {
-        let current = self.current?;
-        Some([0, 1].map(|a| current[a] - half[a] * self.dir[a]))
     }
 
     /// The clean sightings a map is fitted to, the axes `band` marks taken as banded: the
@@ -910,7 +851,7 @@ pub(crate) mod tests {
     /// Where the load of a mount with a dead band of `band` steps per axis sits once the
     /// motor goes to `command` from a load at `load`: an axis commanded within half the
     /// band of its load leaves it; beyond, the load trails the command by half the band.
-    pub fn settle(load: Vec2, command: Vec2, band: Vec2) -> Vec2 {
+    fn settle(load: Vec2, command: Vec2, band: Vec2) -> Vec2 {
         [0, 1].map(|axis| {
             let half = band[axis] / 2.0;
             load[axis].clamp(command[axis] - half, command[axis] + half)

@@ -3,8 +3,8 @@
 //! then at the far station with that response scaled by the stations' distances; at C8,
 //! with a centred compact spot averaged over as many camera placements as the mover's
 //! repeatability calls for, it declares done. Stray light is remembered per station and
-//! taken off as a backdrop (`backdrops`); each mount's lost motion comes from its tracker
-//! (`model`). docs/vision.md ("Relay") gives the whole procedure.
+//! taken off as a backdrop (`backdrops`). docs/vision.md ("Relay") gives the whole
+//! procedure.
 
 use nalgebra::{Matrix2, Vector2};
 use optalign_optics::{Frame, Station};
@@ -39,7 +39,7 @@ pub struct RelayAgent {
     distances: Option<[f64; 8]>,
     /// The camera mover's repeatability, px per axis, when the bench's geometry gives it.
     placement_px: Option<f64>,
-    /// C8's placements: the load and where the spot showed whole, latest per placement.
+    /// C8's placements: the tilt and where the spot showed whole, latest per placement.
     placements: Vec<(Vec2, Vec2)>,
     /// The camera was moved to its station since the last whole spot was booked there.
     placed: bool,
@@ -49,9 +49,6 @@ pub struct RelayAgent {
     /// tilt per step and pixel pitch are known: sizes the first probes.
     px_per_step_mm: Option<f64>,
     cumulative: [i32; 8],
-    /// Each mirror's commands and the whole spots seen at the station it is steered at:
-    /// its lost motion, and where its load is.
-    mounts: [Tracker; 4],
     station: usize,
     mirror: usize,
     phase: Phase,
@@ -63,7 +60,7 @@ pub struct RelayAgent {
     far: Servo,
     far_steps: usize,
     far_dark: usize,
-    /// Where the load was when the camera went to the far station (the centre of a search
+    /// Where the mirror was tilted when the camera went to the far station (the centre of a search
     /// there).
     far_start: Vec2,
     /// The latest near response measured (px per step) and its station: the next mirror's
@@ -85,7 +82,7 @@ pub struct RelayAgent {
     backdrops: Backdrops,
     /// The throw whose frame comes next.
     throw: Option<Throw>,
-    /// Where the load goes back to after a throw.
+    /// Where the mirror goes back to after a throw.
     return_to: Option<Vec2>,
 }
 
@@ -110,7 +107,6 @@ impl RelayAgent {
                     2.0 * tilt * std::f64::consts::FRAC_1_SQRT_2 / pitch[0].max(pitch[1])
                 }),
             cumulative: [0; 8],
-            mounts: std::array::from_fn(|_| new_mount(limits)),
             station: 7,
             mirror: 0,
             phase: Phase::Near,
@@ -168,11 +164,6 @@ impl RelayAgent {
         MAX_SEARCH_SHARE * f64::from(self.limits.max_cumulative)
     }
 
-    /// Where mirror `m`'s load is (vertical, horizontal), steps.
-    fn tilt_of(&self, m: usize) -> Vec2 {
-        self.mounts[m].load().unwrap_or_else(|| self.command_of(m))
-    }
-
     /// The cumulative command of mirror `m` (vertical, horizontal), steps.
     fn command_of(&self, m: usize) -> Vec2 {
         [2 * m, 2 * m + 1].map(|a| f64::from(self.cumulative[a]))
@@ -197,15 +188,12 @@ impl RelayAgent {
             && self.backdrops.wanted(self.station, &view.beams, &s)
             && let Some(throw) = self.throw_step(&s)
         {
-            let load = self.tilt_of(self.mirror);
-            self.throw = Some(self.backdrops.throw(self.station, frame, s, load, throw));
+            let tilt = self.command_of(self.mirror);
+            self.throw = Some(self.backdrops.throw(self.station, frame, s, tilt, throw));
             self.previous = Some((view, self.station, self.cumulative));
             return self.act(tilt_by(self.mirror, throw.0));
         }
         self.previous = Some((view, self.station, self.cumulative));
-        if self.station == working {
-            self.file_sighting(spot);
-        }
         if remaining <= 2 && self.station != 7 {
             return self.act(measure(7));
         }
@@ -301,7 +289,7 @@ impl RelayAgent {
 
     /// The next action of a throw under way (`None`: none is): on the frame after a
     /// throw, the station's backdrop once the spot is clear of where it was (a further
-    /// throw when it is not yet); then back to where the load was, in as many tilts as the
+    /// throw when it is not yet); then back to where the mirror was, in as many tilts as the
     /// longest allowed takes.
     fn throw_under_way(&mut self, frame: &Frame, rejected: bool) -> Option<RelayAction> {
         if let Some(mut throw) = self.throw.take().filter(|_| !rejected) {
@@ -320,14 +308,14 @@ impl RelayAgent {
                 self.throw = Some(throw);
                 return Some(self.act(tilt_by(self.mirror, step)));
             }
-            self.return_to = Some(throw.load);
+            self.return_to = Some(throw.tilt);
         }
-        if let Some(load) = self.return_to.take().filter(|_| !rejected) {
+        if let Some(tilt) = self.return_to.take().filter(|_| !rejected) {
             let view = View::of(self.backdrops.picture(self.station, frame));
             self.previous = Some((view, self.station, self.cumulative));
-            let (tilt, arrives) = self.tilt_towards(load);
-            self.return_to = (!arrives).then_some(load);
-            return Some(self.act(tilt));
+            let (action, arrives) = self.tilt_towards(tilt);
+            self.return_to = (!arrives).then_some(tilt);
+            return Some(self.act(action));
         }
         None
     }
@@ -370,19 +358,6 @@ impl RelayAgent {
         best.map(|(_, step, reach)| (step, reach))
     }
 
-    /// Files a whole spot seen at the station the current mirror is steered at with its
-    /// tracker, which then estimates the mount's lost motion again.
-    fn file_sighting(&mut self, spot: Option<Beam>) {
-        let Some(seen) = spot.map(|s| self.estimate(&s)).filter(|s| s.whole) else {
-            return;
-        };
-        let command = self.command_of(self.mirror);
-        let mount = &mut self.mounts[self.mirror];
-        mount.noise = seen.scatter;
-        mount.add_clean(command, seen.at);
-        mount.estimate_band();
-    }
-
     /// What the agent believes after its last decision, for the transcript.
     pub fn claims(&self) -> serde_json::Value {
         let stage = match self.phase {
@@ -390,7 +365,7 @@ impl RelayAgent {
             Phase::Far => "far station",
         };
         // How far the average of C8's placements misses the centre, px (0 while unknown).
-        let average = self.placements_average(self.tilt_of(3));
+        let average = self.placements_average(self.command_of(3));
         let centre = self.previous.as_ref().map(|(view, _, _)| view.centre());
         let miss = average.zip(centre).map_or(0.0, |(a, c)| distance(a, c));
         serde_json::json!({
@@ -398,7 +373,6 @@ impl RelayAgent {
             "imaged_at": format!("C{}", self.station + 1),
             "spot_px": self.seen_at,
             "response_px_per_step": self.servo().gain(),
-            "lost_motion_steps": self.mounts.iter().map(Tracker::lost).collect::<Vec<_>>(),
             "backdrops_at": self.backdrops.learned().map(|s| format!("C{}", s + 1)).collect::<Vec<_>>(),
             "c8_placements": {
                 "made": self.placements.len(),
@@ -460,7 +434,7 @@ impl RelayAgent {
     /// while it has never shown); once it is centred and whole, the far station's response
     /// is the near one scaled by the stations' distances, and the camera goes there.
     fn near_phase(&mut self, spot: Option<Beam>, centre: Vec2, size: Vec2) -> RelayAction {
-        let u = self.tilt_of(self.mirror);
+        let u = self.command_of(self.mirror);
         let side = size[0].min(size[1]);
         let seen = spot.map(|s| self.estimate(&s));
         if let Some(s) = spot.filter(|s| !s.clipped) {
@@ -505,7 +479,7 @@ impl RelayAgent {
     /// that response: a search of the views around; when it finds nothing, or after too
     /// many steps, back to the near station to start again.
     fn far_phase(&mut self, spot: Option<Beam>, centre: Vec2, size: Vec2) -> RelayAction {
-        let u = self.tilt_of(self.mirror);
+        let u = self.command_of(self.mirror);
         let side = size[0].min(size[1]);
         let seen = spot.map(|s| self.estimate(&s));
         let last = self.mirror == 3;
@@ -569,7 +543,7 @@ impl RelayAgent {
         }
     }
 
-    /// Where the spot shows at load `u` on average over C8's placements (each carried to
+    /// Where the spot shows at tilt `u` on average over C8's placements (each carried to
     /// `u` by C8's response), when there are any and the response is known.
     fn placements_average(&self, u: Vec2) -> Option<Vec2> {
         let gain = self.far.gain().filter(|_| !self.placements.is_empty())?;
@@ -577,7 +551,7 @@ impl RelayAgent {
         let sum = self
             .placements
             .iter()
-            .map(|&(load, at)| carried(gain, load, at, u))
+            .map(|&(tilt, at)| carried(gain, tilt, at, u))
             .fold([0.0; 2], |s, p| [s[0] + p[0], s[1] + p[1]]);
         Some(sum.map(|v| v / n))
     }
@@ -599,7 +573,7 @@ impl RelayAgent {
 
     /// The camera mover's repeatability as C8's placements show it, px along the direction
     /// it is largest (a camera turned about its mount scatters more one way): from
-    /// consecutive placements at the same load (their difference holds two placements'
+    /// consecutive placements at the same tilt (their difference holds two placements'
     /// errors); 0 before there are any.
     fn placements_spread(&self) -> f64 {
         let differences: Vec<Vector2<f64>> = self
@@ -654,12 +628,12 @@ impl RelayAgent {
         self.mirror += 1;
         self.phase = Phase::Near;
         self.search = self.new_search();
-        self.near_start = self.tilt_of(self.mirror);
+        self.near_start = self.command_of(self.mirror);
         self.near = self.new_near_servo();
     }
 
-    /// Tilts the current mirror's load to `target` (vertical, horizontal), with the
-    /// command going past it by the lost motion, within bounds.
+    /// Tilts the current mirror to the command `target` (vertical, horizontal), within
+    /// bounds.
     fn tilt_to(&mut self, target: Vec2) -> RelayAction {
         self.act(self.tilt_towards(target).0)
     }
@@ -671,8 +645,7 @@ impl RelayAgent {
         let step = f64::from(self.limits.max_step);
         let bound = f64::from(self.limits.max_cumulative);
         let u = self.command_of(m);
-        let command = self.mounts[m].command_to_load(target, u);
-        let wanted = [0, 1].map(|a| command[a].clamp(-bound, bound) - u[a]);
+        let wanted = [0, 1].map(|a| target[a].clamp(-bound, bound) - u[a]);
         let tilt = tilt_by(m, wanted.map(|w| w.clamp(-step, step).round()));
         (tilt, wanted.iter().all(|w| w.abs() <= step))
     }
@@ -691,17 +664,12 @@ impl RelayAgent {
                 horizontal,
             }) => {
                 let m = usize::from(mirror);
-                let from = self.command_of(m);
                 self.cumulative[2 * m] += vertical;
                 self.cumulative[2 * m + 1] += horizontal;
-                let to = self.command_of(m);
-                self.mounts[m].moved(from, to);
             }
             Some(RelayAction::Measure { station }) => {
                 if station.index() != self.station {
                     self.backdrops.arrived(station.index());
-                    // The camera sits differently: what it saw elsewhere is another map.
-                    self.mounts[self.mirror].forget_sightings();
                 }
                 self.placed |= station.index() != self.station;
                 self.station = station.index();
@@ -709,15 +677,6 @@ impl RelayAgent {
             _ => {}
         }
     }
-}
-
-/// A mirror's tracker: commands within the range, a fit once they span the shortest probe.
-fn new_mount(limits: &RelayLimits) -> Tracker {
-    let bound = f64::from(limits.max_cumulative);
-    let shortest = RELAY_PROBE_SHARES[0] * 2.0 * bound;
-    let mut mount = Tracker::new([shortest; 2], [[-bound, bound], [-bound, bound]]);
-    mount.min_spread = shortest;
-    mount
 }
 
 fn measure(station: usize) -> RelayAction {
@@ -732,62 +691,5 @@ fn tilt_by(mirror: usize, step: Vec2) -> RelayAction {
         mirror: mirror as u8,
         vertical: step[0] as i32,
         horizontal: step[1] as i32,
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::policy::vision::model::tests::settle;
-
-    #[test]
-    fn a_mounts_dead_band_is_learned_from_its_sightings_and_compensated() {
-        // A mount losing 300 and 200 steps on each reversal of its axes, seen through a
-        // fixed response of a far station's size (a tenth of it, at a near station, shows
-        // half the band as less than the tracker's threshold of a band worth taking);
-        // each command is made by the mount's own model.
-        let band = [300.0, 200.0];
-        let response = Affine {
-            offset: [320.0, 240.0],
-            gain: [[0.3, 0.04], [-0.02, 0.25]],
-        };
-        let mut mount = new_mount(&RelayLimits::default());
-        mount.noise = MIN_NOISE_PX;
-        let (mut command, mut load) = ([0.0, 0.0], [0.0, 0.0]);
-        let mut misses = Vec::new();
-        let targets = [
-            [2000.0, 0.0],
-            [2000.0, 1500.0],
-            [500.0, 1500.0],
-            [500.0, 0.0],
-            [2500.0, 800.0],
-            [1000.0, 800.0],
-            [1000.0, 2000.0],
-            [2200.0, 300.0],
-            [800.0, 1200.0],
-            [1800.0, 1800.0],
-            [1200.0, 400.0],
-            [1600.0, 1000.0],
-            [900.0, 900.0],
-            [1700.0, 1300.0],
-        ];
-        for target in targets {
-            let next = mount.command_to_load(target, command);
-            mount.moved(command, next);
-            (command, load) = (next, settle(load, next, band));
-            misses.push((load[0] - target[0]).abs().max((load[1] - target[1]).abs()));
-            mount.add_clean(next, response.predict(load));
-            mount.estimate_band();
-        }
-        let lost = mount.lost();
-        assert!((lost[0] - 300.0).abs() < 30.0, "{lost:?}");
-        assert!((lost[1] - 200.0).abs() < 30.0, "{lost:?}");
-        // Before the band was learned, reversals missed by half of it; after, the commands
-        // go past the target by it and the load lands there, reversals included.
-        assert!(misses[..4].iter().any(|m| *m > 100.0), "{misses:?}");
-        assert!(
-            misses[misses.len() - 3..].iter().all(|m| *m < 30.0),
-            "{misses:?}"
-        );
     }
 }
