@@ -221,3 +221,17 @@ async fn the_relay_agent_aligns_through_300_steps_of_uncompensated_backlash() {
     let summary = run_on(TaskKind::Relay, 0, scenario, None).await;
     assert!(summary.success && summary.declared_done, "{summary:?}");
 }
+
+#[tokio::test]
+async fn a_run_the_agent_is_never_sure_of_ends_by_its_budget_not_declared_done() {
+    // At artefact brightness 6 the cavity's checks beside the primary never make it sure
+    // (docs/results.md): it sends the secondary to the target with the budget all but spent
+    // and leaves it there, aligned by the hidden truth, without claiming to be done.
+    let scenario = Knob::ArtefactBrightness
+        .apply(&ScenarioFile::default(), 6.0)
+        .expect("a valid artefact brightness");
+    let budget = scenario.tasks.budget(TaskKind::Cavity);
+    let summary = run_on(TaskKind::Cavity, 0, scenario, None).await;
+    assert!(summary.success && !summary.declared_done, "{summary:?}");
+    assert_eq!(summary.evaluations_used, budget, "{summary:?}");
+}

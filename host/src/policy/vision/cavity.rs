@@ -26,6 +26,9 @@ enum Step {
     Probe,
     /// A point near the target; the prediction made for it.
     Check(Option<Vec2>),
+    /// The secondary sent to the target without the model being sure, the budget all but
+    /// spent: the command stands to the end, and the run is not declared done.
+    Final,
 }
 
 /// The cavity state machine.
@@ -72,15 +75,19 @@ impl CavityAgent {
         self.tracker.noise = self.scales.model_noise();
         let confirmed = !rejected && self.observe(&view, primary);
         self.previous = Some(view);
+        if matches!(self.last, Step::Final) {
+            return self.send(self.command, Step::Final, false);
+        }
         let Some(_) = self.tracker.model() else {
-            let u = if remaining <= 1 {
-                self.command
-            } else if self.tracker.latest().is_none() && !self.tracker.missing.is_empty() {
+            if remaining <= 1 {
+                return self.send(self.command, Step::Final, false);
+            }
+            let u = if self.tracker.latest().is_none() && !self.tracker.missing.is_empty() {
                 self.search()
             } else {
                 self.tracker.next_probe([0.0, 0.0])
             };
-            return self.send(u, Step::Probe, remaining <= 1);
+            return self.send(u, Step::Probe, false);
         };
         let aim = self
             .tracker
@@ -89,7 +96,7 @@ impl CavityAgent {
         let tolerance = CAVITY_TOLERANCE_RADII * self.scales.radius(SECONDARY);
         let sure = confirmed && self.tracker.sure_at(aim, tolerance, DONE_CONFIDENCE);
         if sure || remaining <= 2 {
-            return self.send(aim, Step::Check(None), true);
+            return self.send(aim, Step::Final, sure);
         }
         if matches!(self.last, Step::Check(_)) && !self.last_check_seen {
             // The check lost the secondary: probe again from its last clean sighting.
@@ -124,6 +131,7 @@ impl CavityAgent {
             (true, _) => "secondary to the primary, done",
             (_, Step::Probe) => "probe",
             (_, Step::Check(_)) => "check beside the primary",
+            (_, Step::Final) => "secondary to the primary, not sure, budget spent",
         };
         serde_json::json!({
             "phase": phase,

@@ -53,6 +53,9 @@ enum Step {
     /// After a search showed a beam, mirror `k` alone moved a short way: the beam moves if
     /// it is beam `k`, else it is the other mirror's (seen as `appeared`).
     Attribute { k: usize, appeared: Beam },
+    /// Both beams sent to the centre without the models being sure, the budget all but
+    /// spent: the command stands to the end, and the run is not declared done.
+    Final,
 }
 
 /// The Michelson state machine.
@@ -119,8 +122,11 @@ impl MichelsonAgent {
         let confirmed = !rejected && self.observe(&view);
         let (centre, size) = (view.centre(), view.size());
         self.previous = Some(view);
+        if matches!(self.last, Step::Final) {
+            return self.action(false);
+        }
         if remaining <= 1 {
-            return self.finish(centre);
+            return self.finish(centre, false);
         }
         let unmapped = |k: &usize| self.trackers[*k].model().is_none() || self.refuted[*k];
         let next = (0..2)
@@ -129,7 +135,7 @@ impl MichelsonAgent {
             .or_else(|| (0..2).find(unmapped));
         if let Some(k) = next {
             if remaining <= 3 {
-                return self.finish(centre);
+                return self.finish(centre, false);
             }
             if let Some(appeared) = self.appeared.take() {
                 return self.attribute(k, appeared);
@@ -144,7 +150,7 @@ impl MichelsonAgent {
             return self.probe(k, u, centre);
         }
         if confirmed || remaining <= 2 {
-            return self.finish(centre);
+            return self.finish(centre, confirmed);
         }
         self.check(centre, size)
     }
@@ -155,6 +161,7 @@ impl MichelsonAgent {
     pub fn claims(&self, done: bool) -> serde_json::Value {
         let phase = match (done, self.last) {
             (true, _) => "both beams to the centre, done".to_string(),
+            (_, Step::Final) => "both beams to the centre, not sure, budget spent".to_string(),
             (_, Step::Start) => "start".to_string(),
             (_, Step::Probe { k, parked: None }) => format!("probe mirror {}", k + 1),
             (_, Step::Probe { k, parked: Some(_) }) => {
@@ -179,7 +186,7 @@ impl MichelsonAgent {
         };
         self.stayed.clear();
         match self.last {
-            Step::Start => {}
+            Step::Start | Step::Final => {}
             Step::Probe { k, parked } => {
                 if self.observe_probe(&before, view, k, parked) {
                     self.refuted[k] = false;
@@ -648,7 +655,7 @@ impl MichelsonAgent {
         self.checks += 1;
         self.before = [self.mirror(0), self.mirror(1)];
         let Some((solved, _)) = chosen else {
-            return self.finish(centre);
+            return self.finish(centre, false);
         };
         let mut predicted = [[0.0; 2]; 2];
         for (k, u) in solved.into_iter().enumerate() {
@@ -659,14 +666,16 @@ impl MichelsonAgent {
         self.action(false)
     }
 
-    /// Both beams to the centre, done.
-    fn finish(&mut self, centre: Vec2) -> Action {
+    /// Both beams to the centre: done when the models are `sure` of it, else the command
+    /// that stands to the end of the budget ([`Step::Final`]).
+    fn finish(&mut self, centre: Vec2, sure: bool) -> Action {
         for k in 0..2 {
             if let Some(u) = self.trackers[k].command_for(centre, self.mirror(k)) {
                 self.set_mirror(k, u);
             }
         }
-        self.action(true)
+        self.last = Step::Final;
+        self.action(sure)
     }
 
     fn action(&self, done: bool) -> Action {

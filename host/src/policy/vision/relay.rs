@@ -198,7 +198,8 @@ impl RelayAgent {
             return self.act(measure(7));
         }
         if remaining <= 1 {
-            return self.act(RelayAction::Done);
+            // Not centred at C8 with the budget spent: the run ends there, not declared done.
+            return self.act(measure(7));
         }
         if self.station != working {
             return self.act(measure(working));
