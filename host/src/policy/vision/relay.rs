@@ -70,9 +70,6 @@ pub struct RelayAgent {
     previous: Option<(View, usize, [i32; 8])>,
     /// Stationary features seen per station (stray light), px.
     stray: Vec<(usize, Vec2)>,
-    /// How far the current mirror was tilted at this station since anything last moved
-    /// there, steps.
-    still_swing: f64,
     /// Radius of a whole spot, px, once seen.
     radius: Option<f64>,
     last: Option<RelayAction>,
@@ -121,7 +118,6 @@ impl RelayAgent {
             known_near: None,
             previous: None,
             stray: Vec::new(),
-            still_swing: 0.0,
             radius: None,
             last: None,
             seen_at: None,
@@ -225,34 +221,11 @@ impl RelayAgent {
             .collect();
         let Some((before, _, tilts)) = self.previous.as_ref().filter(|p| p.1 == self.station)
         else {
-            self.still_swing = 0.0;
             return strongest(&candidates).copied();
         };
         let steady = 0.1 * radius;
         if *tilts != self.cumulative {
             let moved = motion(before, view, steady, None, None);
-            if moved.to.is_some() || moved.from.is_some() {
-                self.still_swing = 0.0;
-            } else {
-                // The current mirror's tilt since then, steps (the longer axis's move).
-                let m = self.mirror;
-                self.still_swing += (2 * m..2 * m + 2)
-                    .map(|a| f64::from(self.cumulative[a] - tilts[a]).abs())
-                    .fold(0.0, f64::max);
-                if self.still_swing >= self.probe_bounds()[1] {
-                    // Tilts adding up to the longest probe (it moves a beam across any sensor)
-                    // moved nothing: all that shows is stray light, and the servo that steered
-                    // by it starts again (searching, the beam unseen).
-                    for (i, _) in stationary_pairs(&before.beams, &view.beams, steady) {
-                        self.stray.push((self.station, before.beams[i].centre));
-                    }
-                    self.still_swing = 0.0;
-                    if self.phase == Phase::Near {
-                        self.near = self.new_near_servo();
-                    }
-                    return None;
-                }
-            }
             // A short move shows only as a change next to the spot, not as the spot: the
             // spot itself is then the strongest feature, as when nothing moved. A faint
             // change far from the light (speckle shifting) is not the beam either.
