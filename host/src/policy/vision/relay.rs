@@ -60,8 +60,8 @@ pub struct RelayAgent {
     far: Servo,
     far_steps: usize,
     far_dark: usize,
-    /// Where the mirror was tilted when the camera went to the far station (the centre of a search
-    /// there).
+    /// Where the mirror was tilted when the camera went to the far station (the centre of a
+    /// search there).
     far_start: Vec2,
     /// The latest near response measured (px per step) and its station: the next mirror's
     /// first guess.
@@ -190,11 +190,9 @@ impl RelayAgent {
             return self.act(tilt_by(self.mirror, throw.0));
         }
         self.previous = Some((view, self.station, self.cumulative));
-        if remaining <= 2 && self.station != 7 {
-            return self.act(measure(7));
-        }
-        if remaining <= 1 {
-            // Not centred at C8 with the budget spent: the run ends there, not declared done.
+        // With the budget all but spent the run ends imaged at C8, declared done only when
+        // the spot was centred there (`far_phase`).
+        if remaining <= 1 || (remaining <= 2 && self.station != 7) {
             return self.act(measure(7));
         }
         if self.station != working {
