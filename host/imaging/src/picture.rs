@@ -13,7 +13,7 @@ use super::noise::{NoiseMap, clipped_normal_mean};
 use super::tuning::{
     BAND_SHARE, CELL_CLIPPED_SHARE, CELL_OUTLIER, CELLS_PER_SIDE, CLIP_MARGIN, CLIPPED_DARK_SHARE,
     DARKEST_START_SHARE, FIT_ROUNDS, HISTOGRAM_OUTLIER_SPREADS, HOT_NOISES, HOT_RATIO,
-    LIFTED_LEVELS, MAX_BINS, MIN_KNOWN_SHARE, MIN_NOISE_STEPS, MIN_QUADRATIC_CELLS,
+    LIFTED_LEVELS, MAX_BINS, MIN_CELL_PX, MIN_KNOWN_SHARE, MIN_NOISE_STEPS, MIN_QUADRATIC_CELLS,
     MISFIT_SIGNIFICANCE, PLANE_ROUNDS, QUADRATIC_GAIN, SATURATION_PLATEAU_PIXELS, STREAK_COLUMNS,
     STREAK_SIGNIFICANCE, TRIMMED_KEEP_SHARE,
 };
@@ -261,7 +261,7 @@ impl Plane {
     /// from horizontal neighbour differences in the cells kept.
     fn fit(raw: &[u16], width: usize, height: usize, depth: Depth) -> Self {
         let short = width.min(height);
-        let cell = (short / CELLS_PER_SIDE).max(16).min(short.max(1));
+        let cell = (short / CELLS_PER_SIDE).max(MIN_CELL_PX).min(short.max(1));
         let (cw, ch) = (width.div_ceil(cell), height.div_ceil(cell));
         let mut cells = Vec::with_capacity(cw * ch);
         for cy in 0..ch {
@@ -603,6 +603,7 @@ fn remove_column_streaks(light: &mut [f32], width: usize, height: usize, noise: 
     if band < 2 {
         return;
     }
+    // A median's standard error is about 1.25 times the mean's.
     let limit = (STREAK_SIGNIFICANCE * 1.25 * noise / (band as f64).sqrt()) as f32;
     // Each band's column medians, relative to the band's typical column: a streak is a
     // few columns, an offset shared by all of them is left to the background.

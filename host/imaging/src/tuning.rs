@@ -4,8 +4,12 @@
 
 // A frame's background, read noise, streaks and hot pixels (`picture`)
 
-/// Cells per short image side for the background fit (at least 16 px each).
+/// Cells per short image side for the background fit ...
 pub(crate) const CELLS_PER_SIDE: usize = 16;
+
+/// ... each at least this many pixels across, so that its level averages enough pixels
+/// (every other one of every other row: 64 of them) to stand above the noise.
+pub(crate) const MIN_CELL_PX: usize = 16;
 
 /// A cell whose median is this many robust deviations from the plane holds light.
 pub(crate) const CELL_OUTLIER: f64 = 3.0;

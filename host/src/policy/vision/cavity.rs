@@ -12,10 +12,10 @@ use super::model::{Sighting, Tracker, Vec2, distance, rings};
 use super::see::{Seen, View, alike, motion_in};
 use super::sight::{Scales, sight};
 use super::tuning::{
-    CAVITY_APART_RADII, CAVITY_CAUTIOUS_SHARE, CAVITY_MATCH_RADII, CAVITY_PROBE_GROWTH,
-    CAVITY_PROBE_RADII, CAVITY_PROBE_SHARES, CAVITY_SEARCH_SHARE, CAVITY_TOLERANCE_RADII,
-    CHECK_CLEARANCE_RADII, CORE_REACH_RADII, DONE_CONFIDENCE, HIDDEN_RADII, MIN_CHANGE_RADIUS_PX,
-    PRIMARY, PRIMARY_CORE_SHARE, RESOLVED_RADII, SAME_STEP, SEARCH_LEVELS, SECONDARY,
+    APART_RADII, CAUTIOUS_SHARE, CAVITY_MATCH_RADII, CAVITY_PROBE_RADII, CAVITY_SEARCH_SHARE,
+    CAVITY_TOLERANCE_RADII, CHECK_CLEARANCE_RADII, CORE_REACH_RADII, DEFAULT_RADIUS_SHARE,
+    DONE_CONFIDENCE, HIDDEN_RADII, MIN_CHANGE_RADIUS_PX, PRIMARY, PRIMARY_CORE_SHARE, PROBE_GROWTH,
+    PROBE_SHARES, RESOLVED_RADII, SAME_STEP, SEARCH_LEVELS, SEARCH_TRIED_SHARE, SECONDARY,
 };
 use crate::imaging::{core_centre, core_radius, nearest, registered_changes_sized, scene_shift};
 use crate::task::{Action, CavityLimits};
@@ -51,7 +51,7 @@ impl CavityAgent {
     pub fn new(limits: &CavityLimits) -> Self {
         let range = limits.ranges.map(|r| [f64::from(r.min), f64::from(r.max)]);
         Self {
-            tracker: Tracker::new(range.map(|r| CAVITY_CAUTIOUS_SHARE * (r[1] - r[0])), range),
+            tracker: Tracker::new(range.map(|r| CAUTIOUS_SHARE * (r[1] - r[0])), range),
             command: [0.0; 2],
             before: [0.0; 2],
             previous: None,
@@ -156,7 +156,7 @@ impl CavityAgent {
         let untried = |u: Vec2, spacing: Vec2| {
             !self
                 .tracker
-                .tried_within(u, 0.25 * spacing[0].min(spacing[1]))
+                .tried_within(u, SEARCH_TRIED_SHARE * spacing[0].min(spacing[1]))
         };
         if let Some(u) = rings([0.0; 2], step, 1..=2)
             .into_iter()
@@ -235,16 +235,13 @@ impl CavityAgent {
             outside(s) && like_secondary(s) && appeared.is_none_or(|a| alike(&a.change, &s.change))
         });
         let spans = self.tracker.spans();
-        let [lo, hi] = CAVITY_PROBE_SHARES.map(|share| share * spans[0].min(spans[1]));
+        let [lo, hi] = PROBE_SHARES.map(|share| share * spans[0].min(spans[1]));
         if let (Some(a), Some(v)) = (appeared, vanished)
             && distance(a.beam.centre, v.beam.centre)
                 <= RESOLVED_RADII * a.beam.size().max(v.beam.size())
         {
             // Moved too little to tell where it went: a longer probe next time.
-            let probe = self
-                .tracker
-                .probe
-                .map(|p| (p * CAVITY_PROBE_GROWTH).clamp(lo, hi));
+            let probe = self.tracker.probe.map(|p| (p * PROBE_GROWTH).clamp(lo, hi));
             self.tracker.set_probe(probe);
             return false;
         }
@@ -254,7 +251,7 @@ impl CavityAgent {
         // it do not pull its centre, and it shows where the view's detection merged it.
         let apart = matches!((appeared, vanished), (Some(a), Some(v))
             if distance(a.change.centre, v.change.centre)
-                > CAVITY_APART_RADII * a.change.size().max(v.change.size()));
+                > APART_RADII * a.change.size().max(v.change.size()));
         let judge = |seen: &Seen, view: &View| {
             let change = apart.then(|| sight(&seen.change, view, &self.scales, SECONDARY, other));
             match change {
@@ -325,7 +322,7 @@ impl Primary {
     /// centre.
     fn measure(view: &View) -> Self {
         let Some(b) = view.beams.first() else {
-            let radius = 0.05 * view.size()[0].min(view.size()[1]);
+            let radius = DEFAULT_RADIUS_SHARE * view.size()[0].min(view.size()[1]);
             return Self {
                 centre: view.centre(),
                 radius,

@@ -13,10 +13,10 @@ use super::model::{Sighting, Tracker, Vec2, column_norm, distance};
 use super::see::{Seen, View, motion, stationary_pairs};
 use super::sight::{Scales, sight};
 use super::tuning::{
-    BORDER_RADII, CHECK_APART_RADII, DONE_CONFIDENCE, GRID_VIEW_SHARE, IN_VIEW_RADII,
-    MICHELSON_APART_RADII, MICHELSON_CAUTIOUS_SHARE, MICHELSON_MATCH_RADII, MICHELSON_PROBE_GROWTH,
-    MICHELSON_PROBE_RADII, MICHELSON_PROBE_SHARES, MICHELSON_SEARCH_SHARE, MIN_SPREAD_SHARE,
-    PARK_SHARE, PARK_WHEN_SHARE, PROBE_VIEW_SHARE, SAME_STEP, SEARCH_GRID_SHARE, TARGET_TURN,
+    BORDER_RADII, CAUTIOUS_SHARE, CHECK_APART_RADII, DONE_CONFIDENCE, GRID_VIEW_SHARE,
+    IN_VIEW_RADII, LANDS_WITHIN_PX, MICHELSON_APART_RADII, MICHELSON_MATCH_RADII,
+    MICHELSON_PROBE_RADII, MICHELSON_SEARCH_SHARE, MIN_SPREAD_SHARE, PARK_SHARE, PARK_WHEN_SHARE,
+    PROBE_GROWTH, PROBE_SHARES, PROBE_VIEW_SHARE, SAME_STEP, SEARCH_GRID_SHARE, TARGET_TURN,
     WHOLE_RADII,
 };
 use crate::imaging::Beam;
@@ -86,10 +86,7 @@ impl MichelsonAgent {
         let spans = range.map(|r| r[1] - r[0]);
         Self {
             trackers: [0, 2].map(|a| {
-                let probe = [
-                    MICHELSON_CAUTIOUS_SHARE * spans[a],
-                    MICHELSON_CAUTIOUS_SHARE * spans[a + 1],
-                ];
+                let probe = [CAUTIOUS_SHARE * spans[a], CAUTIOUS_SHARE * spans[a + 1]];
                 let mut tracker = Tracker::new(probe, [range[a], range[a + 1]]);
                 tracker.min_spread = MIN_SPREAD_SHARE * probe[0].min(probe[1]);
                 tracker
@@ -255,7 +252,7 @@ impl MichelsonAgent {
             return;
         }
         let span = self.shorter_span(k);
-        let [lo, hi] = MICHELSON_PROBE_SHARES.map(|share| share * span);
+        let [lo, hi] = PROBE_SHARES.map(|share| share * span);
         let probe = self.trackers[k].probe;
         let scaled = |factor: f64| probe.map(|p| (p * factor).clamp(lo, hi));
         let length = match seen {
@@ -269,12 +266,10 @@ impl MichelsonAgent {
                     let length = (wanted / response).clamp(lo, hi);
                     [length, length]
                 } else {
-                    scaled(MICHELSON_PROBE_GROWTH)
+                    scaled(PROBE_GROWTH)
                 }
             }
-            [Some(Sighting::Clean(_) | Sighting::Fitted(_)), None] => {
-                scaled(1.0 / MICHELSON_PROBE_GROWTH)
-            }
+            [Some(Sighting::Clean(_) | Sighting::Fitted(_)), None] => scaled(1.0 / PROBE_GROWTH),
             [_, Some(Sighting::Partial(_))] => {
                 [MICHELSON_SEARCH_SHARE * span; 2].map(|p| p.max(probe[0]))
             }
@@ -286,7 +281,7 @@ impl MichelsonAgent {
                     probe
                 } else {
                     // Seen before, no change now: it hardly moved.
-                    scaled(MICHELSON_PROBE_GROWTH)
+                    scaled(PROBE_GROWTH)
                 }
             }
             [None, None] => {
@@ -301,8 +296,7 @@ impl MichelsonAgent {
                         self.trackers[k].search_grid = Some(grid);
                         SEARCH_GRID_SHARE * side / column_norm(other.gain).max(1e-9)
                     }
-                    None => (MICHELSON_SEARCH_SHARE * span)
-                        .max(probe[0] * MICHELSON_PROBE_GROWTH.sqrt()),
+                    None => (MICHELSON_SEARCH_SHARE * span).max(probe[0] * PROBE_GROWTH.sqrt()),
                 };
                 [search.clamp(lo, hi); 2]
             }
@@ -494,7 +488,7 @@ impl MichelsonAgent {
             return;
         }
         let wanted = self.useful_move(k, size);
-        let [lo, hi] = MICHELSON_PROBE_SHARES.map(|share| share * self.shorter_span(k));
+        let [lo, hi] = PROBE_SHARES.map(|share| share * self.shorter_span(k));
         let probe = [0, 1].map(|axis| {
             let response = known.gain[0][axis].hypot(known.gain[1][axis]);
             (wanted / response.max(1e-9)).clamp(lo, hi)
@@ -589,7 +583,7 @@ impl MichelsonAgent {
         self.before = [self.mirror(0), self.mirror(1)];
         let now = self.mirror(k);
         let [low, high] = self.trackers[k].range[0];
-        let step = MICHELSON_CAUTIOUS_SHARE * (high - low);
+        let step = CAUTIOUS_SHARE * (high - low);
         let towards_middle = if now[0] > (low + high) / 2.0 {
             -step
         } else {
@@ -644,7 +638,8 @@ impl MichelsonAgent {
             let [a, b] = [0, 1].map(|k| self.trackers[k].command_for(targets[k], self.mirror(k)));
             let solved = [a?, b?];
             let lands = |k: usize| self.trackers[k].predict(solved[k]);
-            let within = (0..2).all(|k| lands(k).is_some_and(|p| distance(p, targets[k]) < 1.0));
+            let within =
+                (0..2).all(|k| lands(k).is_some_and(|p| distance(p, targets[k]) < LANDS_WITHIN_PX));
             Some((solved, within))
         });
         let first = candidates.next();

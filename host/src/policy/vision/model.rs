@@ -9,8 +9,9 @@ use std::ops::RangeInclusive;
 
 use super::bench::{self, Point};
 use super::tuning::{
-    BAND_CONFIDENCE, BAND_MIN_SIGHTINGS, BAND_PER_SIDE, BAND_WORTH_NOISES, ROBUST_MIN_POINTS,
-    ROUGH_BALANCE, ROUGH_REACH, SAME_COMMAND_SHARE, SAME_STEP, SEARCH_REFINEMENTS, SEARCH_RINGS,
+    ACROSS_REACH_PROBES, ACROSS_SHORTENING, BAND_CONFIDENCE, BAND_MIN_SIGHTINGS, BAND_PER_SIDE,
+    BAND_WORTH_NOISES, MIN_SPREAD_PROBES, PROBE_MULTIPLES, ROBUST_MIN_POINTS, ROUGH_BALANCE,
+    ROUGH_REACH, SAME_COMMAND_SHARE, SAME_STEP, SEARCH_REFINEMENTS, SEARCH_RINGS,
 };
 
 /// A 2-vector (motor steps or pixels).
@@ -257,7 +258,7 @@ impl Tracker {
             missing: Vec::new(),
             probe,
             range,
-            min_spread: probe[0].min(probe[1]) / 4.0,
+            min_spread: MIN_SPREAD_PROBES * probe[0].min(probe[1]),
             dir: [0.0; 2],
             previous_dir: [0.0; 2],
             current: None,
@@ -584,7 +585,7 @@ impl Tracker {
                 .collect();
             // Axes not yet spanned first.
             dirs.sort_by_key(|d| usize::from(spans(usize::from(d[1] != 0.0))));
-            [1.0, 2.0]
+            PROBE_MULTIPLES
                 .into_iter()
                 .flat_map(|m| dirs.iter().map(move |d| [0, 1].map(|a| base[a] + m * d[a])))
                 .collect()
@@ -746,7 +747,7 @@ impl Tracker {
             return None;
         }
         let probe = self.probe[0] * along[1].abs() + self.probe[1] * along[0].abs();
-        let reach = 3.0 * probe.max(span);
+        let reach = ACROSS_REACH_PROBES * probe.max(span);
         let travel = (((target[0] - seen[0]) * response[0] + (target[1] - seen[1]) * response[1])
             / strength)
             .clamp(-reach, reach);
@@ -761,9 +762,10 @@ impl Tracker {
         let size = strength.sqrt();
         let sideways = [-response[1] / size, response[0] / size];
         let room = room(landing, sideways, view) - margin;
-        let full = (room / (size * probe)).clamp(1.0 / 3.0, 1.0);
+        let full = (room / (size * probe)).clamp(1.0 / ACROSS_SHORTENING, 1.0);
         let same = self.same_command();
-        [full, -full, full / 3.0, -full / 3.0]
+        let short = full / ACROSS_SHORTENING;
+        [full, -full, short, -short]
             .into_iter()
             .map(|share| {
                 let step = share * probe;

@@ -15,10 +15,11 @@ use super::model::{Affine, Tracker, Vec2, carried, column_norm, distance, square
 use super::see::{View, motion, stationary_pairs};
 use super::servo::{Servo, Spot, useful_probe};
 use super::tuning::{
-    DONE_CONFIDENCE, DONE_SHARE, FAR_SEARCH_OVERLAP, FAR_SEARCH_RINGS, MAX_FAR_STEPS,
-    MAX_SEARCH_SHARE, MAX_THROWS, MIN_NOISE_PX, MIN_REMAINING_TO_THROW, MOVED_SHARE,
-    NEAR_CENTRED_SHARE, PASS_SHARE, RELAY_CAUTIOUS_SHARE, RELAY_PROBE_SHARES,
-    RELAY_SEARCH_GRID_SHARE, SEARCH_GROWTH, STRAY_RADII, THROW_RADII, WHOLE_ENOUGH_EDGE,
+    CAUTIOUS_SHARE, DEFAULT_RADIUS_SHARE, DONE_CONFIDENCE, DONE_SHARE, FAR_SEARCH_OVERLAP,
+    FAR_SEARCH_RINGS, MAX_FAR_STEPS, MAX_SEARCH_SHARE, MAX_THROWS, MIN_NOISE_PX,
+    MIN_REMAINING_TO_THROW, MOVED_SHARE, NEAR_CENTRED_SHARE, PASS_SHARE, RELAY_PROBE_SHARES,
+    RELAY_SEARCH_GRID_SHARE, RELAY_STEADY_RADII, SAME_STEP, SEARCH_GROWTH, STRAY_RADII,
+    THROW_RADII, WHOLE_ENOUGH_EDGE,
 };
 use crate::imaging::{Beam, strongest};
 use crate::task::{BenchGeometry, RelayAction, RelayLimits};
@@ -150,7 +151,7 @@ impl RelayAgent {
             Some((response, side)) => {
                 (RELAY_SEARCH_GRID_SHARE * side / response).clamp(1.0, self.widest_search())
             }
-            None => RELAY_CAUTIOUS_SHARE * 2.0 * bound,
+            None => CAUTIOUS_SHARE * 2.0 * bound,
         };
         Tracker::new([probe, probe], [[-bound, bound], [-bound, bound]])
     }
@@ -210,7 +211,7 @@ impl RelayAgent {
     fn find_spot(&mut self, view: &View) -> Option<Beam> {
         let radius = self
             .radius
-            .unwrap_or(0.05 * view.size()[0].min(view.size()[1]));
+            .unwrap_or(DEFAULT_RADIUS_SHARE * view.size()[0].min(view.size()[1]));
         let candidates: Vec<Beam> = view
             .beams
             .iter()
@@ -221,7 +222,7 @@ impl RelayAgent {
         else {
             return strongest(&candidates).copied();
         };
-        let steady = 0.1 * radius;
+        let steady = RELAY_STEADY_RADII * radius;
         if *tilts != self.cumulative {
             let moved = motion(before, view, steady, None, None);
             // A short move shows only as a change next to the spot, not as the spot: the
@@ -368,7 +369,7 @@ impl RelayAgent {
         let known = self.assumed_gain(station).map(column_norm);
         let probe = match (self.nominal_response(station).or(known), side) {
             (Some(response), Some(side)) => useful_probe(side, response),
-            _ => RELAY_CAUTIOUS_SHARE * range,
+            _ => CAUTIOUS_SHARE * range,
         };
         Servo::new(probe, self.probe_bounds(), gain)
     }
@@ -551,7 +552,7 @@ impl RelayAgent {
         let differences: Vec<Vector2<f64>> = self
             .placements
             .windows(2)
-            .filter(|pair| distance(pair[0].0, pair[1].0) < 1.0)
+            .filter(|pair| distance(pair[0].0, pair[1].0) < SAME_STEP)
             .map(|pair| Vector2::new(pair[1].1[0] - pair[0].1[0], pair[1].1[1] - pair[0].1[1]))
             .collect();
         if differences.is_empty() {

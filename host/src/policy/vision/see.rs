@@ -8,7 +8,10 @@
 use optalign_optics::Frame;
 
 use super::model::{Vec2, distance};
-use super::tuning::{MERGED_LIGHT, MERGED_SIZE, SEE_RESIDUE_SHARE};
+use super::tuning::{
+    ALIKE_LIGHT, ALIKE_SIZE, APART_RADII, MERGED_LIGHT, MERGED_SIZE, SEE_RESIDUE_SHARE,
+    STEADY_UNCERTAINTIES,
+};
 use crate::imaging::{Beam, Changes, Picture, changes, find_beams, nearest, strongest};
 
 /// One frame, measured.
@@ -66,7 +69,8 @@ pub struct Motion {
 pub fn alike(a: &Beam, b: &Beam) -> bool {
     let size = a.size().max(1.0) / b.size().max(1.0);
     let light = a.signal.max(1.0) / b.signal.max(1.0);
-    (0.5..2.0).contains(&size) && (0.33..3.0).contains(&light)
+    (ALIKE_SIZE[0]..ALIKE_SIZE[1]).contains(&size)
+        && (ALIKE_LIGHT[0]..ALIKE_LIGHT[1]).contains(&light)
 }
 
 /// Whether the change `blob` lies inside one of `features` with less than `share` of its
@@ -86,7 +90,7 @@ pub fn stationary_pairs(before: &[Beam], after: &[Beam], steady: f64) -> Vec<(us
         for (j, b) in after.iter().enumerate() {
             let d = distance(a.centre, b.centre);
             let allowance = steady
-                .max(3.0 * a.uncertainty.hypot(b.uncertainty))
+                .max(STEADY_UNCERTAINTIES * a.uncertainty.hypot(b.uncertainty))
                 .max(1.0);
             if d <= allowance && alike(a, b) {
                 candidates.push((d, i, j));
@@ -145,7 +149,7 @@ pub fn motion_in(
             .collect();
         let nearest_avoided = avoid.and_then(|p| {
             nearest(&real, p)
-                .filter(|b| distance(b.centre, p) < 2.0 * b.size())
+                .filter(|b| distance(b.centre, p) < APART_RADII * b.size())
                 .map(|b| b.centre)
         });
         real.into_iter()
@@ -162,7 +166,7 @@ pub fn motion_in(
     let from = match to {
         Some(t) => vanished
             .iter()
-            .filter(|b| (0.33..3.0).contains(&(b.signal / t.signal.max(1.0))))
+            .filter(|b| (ALIKE_LIGHT[0]..ALIKE_LIGHT[1]).contains(&(b.signal / t.signal.max(1.0))))
             .max_by(|a, b| a.signal.total_cmp(&b.signal))
             .or_else(|| strongest(&vanished))
             .copied(),
@@ -172,7 +176,7 @@ pub fn motion_in(
     // detection there with much more light holds another beam too.
     let apart = from
         .zip(to)
-        .is_none_or(|(f, t)| distance(f.centre, t.centre) > 2.0 * f.size().max(t.size()));
+        .is_none_or(|(f, t)| distance(f.centre, t.centre) > APART_RADII * f.size().max(t.size()));
     // Where a change shows in one view: the view's own detection that covers the change and
     // did not stay put between the frames, nearest first; else only the change itself.
     let place = |blob: Beam, beams: &[Beam], side: fn(&(usize, usize)) -> usize| {

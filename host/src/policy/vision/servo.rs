@@ -9,8 +9,8 @@
 use super::bench::{Point, Response, STILL, isotropic};
 use super::model::{Affine, Vec2, column_norm, distance};
 use super::tuning::{
-    CUT_PENALTY_SIDES, GAIN_PRIOR_SHARE, MIN_MOVE_SHARE, SERVO_GROWTH, SERVO_PROBE_VIEW_SHARE,
-    START_RADIUS_PROBES,
+    CUT_PENALTY_SIDES, GAIN_PRIOR_SHARE, MIN_MOVE_SHARE, SAME_STEP, SERVO_GROWTH,
+    SERVO_PROBE_VIEW_SHARE, START_RADIUS_PROBES,
 };
 
 /// Where the spot showed.
@@ -288,7 +288,8 @@ impl Servo {
                 // The tilt just looked at, to within a step, where the caller found the spot
                 // off the target: the response cannot get it any closer.
                 let standing_still = self.last.is_some_and(|tilt| {
-                    (tilt[0] - proposal[0]).abs() < 1.0 && (tilt[1] - proposal[1]).abs() < 1.0
+                    (tilt[0] - proposal[0]).abs() < SAME_STEP
+                        && (tilt[1] - proposal[1]).abs() < SAME_STEP
                 });
                 if (length < self.bounds[0] && !best.spot.whole) || standing_still {
                     // A spot the response says is where it should be, when it is cut or was
@@ -299,7 +300,7 @@ impl Servo {
                     self.drop_gain();
                     if self
                         .refuted_at
-                        .is_some_and(|at| distance(at, best.tilt) < 1.0)
+                        .is_some_and(|at| distance(at, best.tilt) < SAME_STEP)
                     {
                         self.probe_sign = -self.probe_sign;
                     }

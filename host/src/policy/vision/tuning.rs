@@ -47,10 +47,24 @@ pub const CAVITY_TOLERANCE_RADII: f64 = 0.4;
 /// spot partly on the sensor's edge), which later steps must be free to correct.
 pub const GAIN_PRIOR_SHARE: f64 = 0.5;
 
-// The relay agent (`relay`)
+// Probes (every agent)
 
-/// The first probe tilts an axis by this share of the cumulative range (both sides).
-pub const RELAY_CAUTIOUS_SHARE: f64 = 1.0 / 32.0;
+/// The first probe moves an axis by this share of its command range (the relay: of its
+/// cumulative range, both sides), before anything is known of the response: a short first
+/// step, grown or shrunk by what it shows.
+pub const CAUTIOUS_SHARE: f64 = 1.0 / 32.0;
+
+/// The Michelson's and the cavity's probe lengths stay within these shares of the command
+/// range.
+pub const PROBE_SHARES: [f64; 2] = [1.0 / 64.0, 1.0 / 3.0];
+
+/// A Michelson or cavity probe that did not move its beam visibly, or too little to
+/// resolve, is grown by this factor (three times longer takes any move of more than a
+/// third of the needed one past it in one step); a Michelson probe that lost its beam is
+/// shrunk by it.
+pub const PROBE_GROWTH: f64 = 3.0;
+
+// The relay agent (`relay`)
 
 /// Probes and steps stay within these shares of the cumulative range.
 pub const RELAY_PROBE_SHARES: [f64; 2] = [1.0 / 512.0, 1.0 / 4.0];
@@ -93,6 +107,10 @@ pub const FAR_SEARCH_OVERLAP: f64 = 0.8;
 /// A feature that moved with a tilt is the beam only with at least this share of the
 /// strongest feature's light.
 pub const MOVED_SHARE: f64 = 0.3;
+
+/// Between two frames at one station, a feature that moved less than this many spot radii
+/// stayed put (the relay's benches jitter by far less than a tenth of a spot).
+pub const RELAY_STEADY_RADII: f64 = 0.1;
 
 /// A throw (to learn a station's stationary light) is made only with more evaluations
 /// than this left.
@@ -172,6 +190,24 @@ pub const MERGED_LIGHT: f64 = 1.4;
 /// residue of the feature's jitter.
 pub const SEE_RESIDUE_SHARE: f64 = 0.25;
 
+/// Two detections can be one feature when their sizes are within this range of ratios
+/// (a beam's measured size changes with what merges with it and where the border cuts
+/// it, but not by a factor of two) ...
+pub const ALIKE_SIZE: [f64; 2] = [0.5, 2.0];
+
+/// ... and their light within this one (flicker, clipping and texture change a beam's
+/// light by less than a factor of three).
+pub const ALIKE_LIGHT: [f64; 2] = [0.33, 3.0];
+
+/// A stationary feature may seem to move by at least this many times the two centres'
+/// combined uncertainty (a 3-sigma bound).
+pub const STEADY_UNCERTAINTIES: f64 = 3.0;
+
+/// A beam that moved farther than this many of its radii from where it was shows whole in
+/// the frames' difference (its old and new places, each about two radii of light across,
+/// no longer overlap); a change within that distance of a place belongs to the beam there.
+pub const APART_RADII: f64 = 2.0;
+
 // Which sighting of a beam is clean (`sight`)
 
 /// Before any beam was measured, a beam is taken to be this share of the image's shorter
@@ -209,12 +245,6 @@ pub const CLEAR_OF_BORDER_RADII: f64 = 2.0;
 /// a beam between points shows at least in part).
 pub const GRID_VIEW_SHARE: f64 = 0.9;
 
-/// The first probe moves an axis by this share of its command range.
-pub const MICHELSON_CAUTIOUS_SHARE: f64 = 1.0 / 32.0;
-
-/// Probe lengths stay within these shares of the command range.
-pub const MICHELSON_PROBE_SHARES: [f64; 2] = [1.0 / 64.0, 1.0 / 3.0];
-
 /// While a beam shows only partly or not at all, probes search in steps of this share of
 /// the command range.
 pub const MICHELSON_SEARCH_SHARE: f64 = 1.0 / 6.0;
@@ -222,10 +252,6 @@ pub const MICHELSON_SEARCH_SHARE: f64 = 1.0 / 6.0;
 /// A search with a known response moves the beam by this share of the image's shorter
 /// side per probe length (the grid's points are two probe lengths apart).
 pub const SEARCH_GRID_SHARE: f64 = 0.5;
-
-/// A probe that did not move the beam visibly is grown by this factor; one that lost it
-/// is shrunk by it.
-pub const MICHELSON_PROBE_GROWTH: f64 = 3.0;
 
 /// A probe aims to move the beam this many beam radii ...
 pub const MICHELSON_PROBE_RADII: f64 = 3.2;
@@ -250,6 +276,10 @@ pub const CHECK_APART_RADII: [f64; 3] = [1.8, 2.4, 3.0];
 /// A check keeps each beam's centre this many radii inside the image, so that the border
 /// cuts neither.
 pub const WHOLE_RADII: f64 = 1.5;
+
+/// A check layout puts a beam where wanted when the map lands it within this, px: a pixel,
+/// about what a centre is measured to.
+pub const LANDS_WITHIN_PX: f64 = 1.0;
 
 /// A beam found farther than this many radii from a beam's prediction is not that beam.
 pub const MICHELSON_MATCH_RADII: f64 = 1.0;
@@ -277,35 +307,26 @@ pub const SECONDARY: usize = 0;
 
 pub const PRIMARY: usize = 1;
 
-/// The first probe moves an axis by this share of its command range.
-pub const CAVITY_CAUTIOUS_SHARE: f64 = 1.0 / 32.0;
-
 /// While the secondary has not been seen, the search steps by this share of the range.
 pub const CAVITY_SEARCH_SHARE: f64 = 0.25;
 
 /// After its first rings, the search covers the range on grids this many times finer.
 pub const SEARCH_LEVELS: usize = 4;
 
-/// Probe lengths stay within these shares of the command range.
-pub const CAVITY_PROBE_SHARES: [f64; 2] = [1.0 / 64.0, 1.0 / 3.0];
+/// A search point within this share of its grid's spacing of a command already tried looks
+/// at what that command showed, and is skipped.
+pub const SEARCH_TRIED_SHARE: f64 = 0.25;
 
 /// A probe aims to move the secondary this many of its radii.
 pub const CAVITY_PROBE_RADII: f64 = 4.0;
 
 /// A change whose appearing and vanishing parts are closer than this many radii is a beam
-/// that moved too little to measure: the probe grows by [`CAVITY_PROBE_GROWTH`].
+/// that moved too little to measure: the probe grows by [`PROBE_GROWTH`].
 pub const RESOLVED_RADII: f64 = 2.0;
-
-/// Factor a cavity probe grows by after a move too small to resolve: three times longer
-/// takes any move of more than a third of [`RESOLVED_RADII`] past it in one step.
-pub const CAVITY_PROBE_GROWTH: f64 = 3.0;
 
 /// A change whose second-moment radius collapses below this, px, is a speck of a few
 /// pixels (a stray spot's flicker, a hot pixel), never a measurable beam.
 pub const MIN_CHANGE_RADIUS_PX: f64 = 1.0;
-
-/// A secondary that moved farther than this many of its radii shows whole in the change.
-pub const CAVITY_APART_RADII: f64 = 2.0;
 
 /// Within this many primary radii of the target the secondary is (partly) hidden.
 pub const HIDDEN_RADII: f64 = 1.2;
@@ -336,6 +357,22 @@ pub const SAME_COMMAND_SHARE: f64 = 0.04;
 
 /// Commands closer than this are the very same command, steps.
 pub const SAME_STEP: f64 = 1.0;
+
+/// The spread of clean commands a fit needs, as a share of the shorter probe (the
+/// Michelson asks for less: [`MIN_SPREAD_SHARE`]).
+pub const MIN_SPREAD_PROBES: f64 = 0.25;
+
+/// A probe of an axis the sightings do not span yet goes one, then two probe lengths
+/// either way from the latest clean sighting.
+pub const PROBE_MULTIPLES: [f64; 2] = [1.0, 2.0];
+
+/// A probe across a known direction travels along it by at most this many probe lengths
+/// (or the span the sightings cover, when longer) ...
+pub const ACROSS_REACH_PROBES: f64 = 3.0;
+
+/// ... and goes across by a whole probe when the view has room, by no less than one over
+/// this when it has not, and by that over this when both signs were tried.
+pub const ACROSS_SHORTENING: f64 = 3.0;
 
 /// A dead band is looked for on an axis once this many clean sightings were made after it
 /// moved ...
