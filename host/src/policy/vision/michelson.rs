@@ -10,7 +10,7 @@
 use optalign_optics::Frame;
 
 use super::model::{Sighting, Tracker, Vec2, column_norm, distance};
-use super::see::{Seen, View, motion, stationary_pairs};
+use super::see::{Seen, View, motion};
 use super::sight::{Scales, sight};
 use super::tuning::{
     BORDER_RADII, CAUTIOUS_SHARE, CHECK_APART_RADII, DONE_CONFIDENCE, GRID_VIEW_SHARE,
@@ -189,7 +189,7 @@ impl MichelsonAgent {
                     self.refuted[k] = false;
                 }
             }
-            Step::Check { predicted } => return self.observe_check(&before, view, predicted),
+            Step::Check { predicted } => return self.observe_check(view, predicted),
             Step::Search { k } => self.observe_search(&before, view, k),
             Step::Attribute { k, appeared } => self.observe_attribute(&before, view, k, &appeared),
         }
@@ -235,7 +235,7 @@ impl MichelsonAgent {
             self.scales.learn_shape(k, &s.beam, after);
         }
         // The parked beam, found near where its map sent it.
-        if let Some(c) = parked.and_then(|(_, to)| self.find_near(after, j, to, &[])) {
+        if let Some(c) = parked.and_then(|(_, to)| self.find_near(after, j, to)) {
             let u = self.mirror(j);
             self.trackers[j].add_clean(u, c);
         }
@@ -413,18 +413,8 @@ impl MichelsonAgent {
         (MICHELSON_PROBE_RADII * self.scales.radius(k)).min(PROBE_VIEW_SHARE * size[0].min(size[1]))
     }
 
-    fn observe_check(&mut self, before: &View, view: &View, predicted: [Vec2; 2]) -> bool {
-        // A beam the check moved across the image is not a spot that stayed put (a stray
-        // reflection or ghost near where its map put it).
-        let pairs = stationary_pairs(&before.beams, &view.beams, self.scales.steady());
-        let stayed: Vec<usize> = pairs.iter().map(|p| p.1).collect();
-        let found = [0, 1].map(|k| {
-            let moved_far = self.trackers[k].model().is_some_and(|m| {
-                distance(m.predict(self.before[k]), predicted[k]) > self.scales.radius(k)
-            });
-            let skip = if moved_far { stayed.as_slice() } else { &[] };
-            self.find_near(view, k, predicted[k], skip)
-        });
+    fn observe_check(&mut self, view: &View, predicted: [Vec2; 2]) -> bool {
+        let found = [0, 1].map(|k| self.find_near(view, k, predicted[k]));
         if let [Some(a), Some(b)] = found
             && a == b
         {
@@ -465,15 +455,12 @@ impl MichelsonAgent {
         })
     }
 
-    /// The clean centre of beam `k` nearest `point` in `view`, within the match radius,
-    /// passing over the detections indexed in `skip`.
-    fn find_near(&self, view: &View, k: usize, point: Vec2, skip: &[usize]) -> Option<Vec2> {
+    /// The clean centre of beam `k` nearest `point` in `view`, within the match radius.
+    fn find_near(&self, view: &View, k: usize, point: Vec2) -> Option<Vec2> {
         let radius = self.scales.radius(k);
         view.beams
             .iter()
-            .enumerate()
-            .filter(|(i, _)| !skip.contains(i))
-            .filter_map(|(_, b)| sight(b, view, &self.scales, k, None).fit_centre())
+            .filter_map(|b| sight(b, view, &self.scales, k, None).fit_centre())
             .filter(|c| distance(*c, point) < MICHELSON_MATCH_RADII * radius)
             .min_by(|a, b| distance(*a, point).total_cmp(&distance(*b, point)))
     }
