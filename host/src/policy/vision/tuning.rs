@@ -109,7 +109,8 @@ pub const FAR_SEARCH_OVERLAP: f64 = 0.8;
 pub const MOVED_SHARE: f64 = 0.3;
 
 /// Between two frames at one station, a feature that moved less than this many spot radii
-/// stayed put (the relay's benches jitter by far less than a tenth of a spot).
+/// stayed put. The relay measures no jitter: this is the same idea as
+/// [`DEFAULT_STEADY_RADII`] with another factor, kept at the value it was screened with.
 pub const RELAY_STEADY_RADII: f64 = 0.1;
 
 /// A throw (to learn a station's stationary light) is made only with more evaluations
@@ -190,13 +191,13 @@ pub const MERGED_LIGHT: f64 = 1.4;
 /// residue of the feature's jitter.
 pub const SEE_RESIDUE_SHARE: f64 = 0.25;
 
-/// Two detections can be one feature when their sizes are within this range of ratios
-/// (a beam's measured size changes with what merges with it and where the border cuts
-/// it, but not by a factor of two) ...
+/// Two detections can be one feature only when their sizes are within this range of
+/// ratios ...
 pub const ALIKE_SIZE: [f64; 2] = [0.5, 2.0];
 
-/// ... and their light within this one (flicker, clipping and texture change a beam's
-/// light by less than a factor of three).
+/// ... and their light within this one: room for a beam's flicker and texture between
+/// frames, while a stray spot or a speck of a different size and brightness is told apart.
+/// A beam the border cuts much more in one frame than in the other falls outside them.
 pub const ALIKE_LIGHT: [f64; 2] = [0.33, 3.0];
 
 /// A stationary feature may seem to move by at least this many times the two centres'
@@ -370,8 +371,9 @@ pub const PROBE_MULTIPLES: [f64; 2] = [1.0, 2.0];
 /// (or the span the sightings cover, when longer) ...
 pub const ACROSS_REACH_PROBES: f64 = 3.0;
 
-/// ... and goes across by a whole probe when the view has room, by no less than one over
-/// this when it has not, and by that over this when both signs were tried.
+/// ... and goes across by a whole probe when the view has room, else by as much as fits
+/// but no less than one over this of a probe; once both signs of that were tried, by that
+/// over this again.
 pub const ACROSS_SHORTENING: f64 = 3.0;
 
 /// A dead band is looked for on an axis once this many clean sightings were made after it
