@@ -75,7 +75,6 @@ impl Backdrop {
             .zip(&self.levels)
             .map(|(&p, b)| f32::from(p) * scale - b)
             .collect();
-        let noise = picture.noise().hypot(self.noise);
         let stationary = NoiseMap::uniform(self.width, self.height, self.noise);
         let noise_map = picture.noise_map().of_difference(&stationary, 1.0);
         // Less the median of its cells' means.
@@ -83,7 +82,7 @@ impl Backdrop {
         if let Some(offset) = median(cells.means().collect()) {
             light.iter_mut().for_each(|v| *v -= offset as f32);
         }
-        Some(picture.with_light(light, noise, noise_map))
+        Some(picture.with_light(light, picture.noise().hypot(self.noise), noise_map))
     }
 }
 

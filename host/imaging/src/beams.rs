@@ -149,8 +149,7 @@ pub fn find_faint_beams(picture: &Picture, radius: f64) -> Vec<Beam> {
 /// joined into beams by `joining`.
 fn beams_in(picture: &Picture, reach: usize, joining: Joining) -> Vec<Beam> {
     let grid = Grid::new(picture, reach);
-    let regions = grid.regions();
-    let groups = join_regions(picture, &grid, &regions, joining);
+    let groups = join_regions(picture, &grid, &grid.regions(), joining);
     let owner = grid.partition(&groups);
     let mut beams: Vec<Beam> = groups
         .iter()
@@ -217,12 +216,10 @@ impl Grid {
         let (smooth, smooth_noise): (Vec<f32>, Vec<f32>) = if reach == 1 {
             (0..bw * bh)
                 .map(|b| {
-                    let (mut sum, mut variance, mut n) = (0f32, 0f32, 0f32);
-                    for i in around(b, 1, bw, bh) {
-                        sum += means[i];
-                        variance += pixel_noise[i].powi(2);
-                        n += 1.0;
-                    }
+                    let (sum, variance, n) = around(b, 1, bw, bh)
+                        .fold((0f32, 0f32, 0f32), |(s, v, n), i| {
+                            (s + means[i], v + pixel_noise[i].powi(2), n + 1.0)
+                        });
                     (sum / n, ((variance / n).sqrt() / side).hypot(misfit))
                 })
                 .unzip()
@@ -252,14 +249,10 @@ impl Grid {
 
     /// Σ v, Σ v x and Σ v y over the centres of `blocks`, `v` the `weight` of each.
     fn weighted(&self, blocks: &[usize], weight: impl Fn(usize) -> f64) -> [f64; 3] {
-        let mut sums = [0.0; 3];
-        for &b in blocks {
+        blocks.iter().fold([0.0; 3], |[s, sx, sy], &b| {
             let (v, c) = (weight(b), self.centre_of(b));
-            sums[0] += v;
-            sums[1] += v * c[0];
-            sums[2] += v * c[1];
-        }
-        sums
+            [s + v, sx + v * c[0], sy + v * c[1]]
+        })
     }
 
     /// Grows `blocks` breadth-first over the blocks labelled `free` that `joins` accepts,
@@ -506,15 +499,12 @@ fn dark_between(
     };
     let length = (b.centre[0] - a.centre[0]).hypot(b.centre[1] - a.centre[1]);
     let samples = (2.0 * length / BLOCK as f64).ceil().max(1.0) as usize;
+    // The block holding position `v`, px, along an axis of `side` blocks.
+    let block = |v: f64, side: usize| (v.max(0.0) as usize / BLOCK).min(side - 1);
     (0..=samples).any(|k| {
         let t = k as f64 / samples as f64;
-        let x = a.centre[0] + t * (b.centre[0] - a.centre[0]);
-        let y = a.centre[1] + t * (b.centre[1] - a.centre[1]);
-        let (bx, by) = (
-            (x.max(0.0) as usize / BLOCK).min(grid.bw - 1),
-            (y.max(0.0) as usize / BLOCK).min(grid.bh - 1),
-        );
-        let i = by * grid.bw + bx;
+        let [x, y] = [0, 1].map(|axis| a.centre[axis] + t * (b.centre[axis] - a.centre[axis]));
+        let i = block(y, grid.bh) * grid.bw + block(x, grid.bw);
         let block_noise = f64::from(grid.pixel_noise[i]) / BLOCK as f64;
         let apart = tail_a.at([x, y]) + tail_b.at([x, y]);
         f64::from(grid.means[i]) <= JOIN_NODE_SHARE * apart + JOIN_VALLEY_NOISES * block_noise
@@ -739,7 +729,6 @@ fn measure(
     let gain = (picture.noise().hypot(picture.background_misfit()) / signal).powi(2);
     let read = footprint.spread.map(|row| row.map(|g| gain * g));
     let covariance = split.map_or(read, |split| with_texture(read, split));
-    let uncertainty = (covariance[0][0] + covariance[1][1]).sqrt();
     let peak = f64::from(brightest(&grid.means, blocks));
     // Cut by the border: it is still bright there (a faint rim touching it moves the
     // centroid by nothing worth a flag). Smoothed blocks on both sides of the ratio: the
@@ -762,7 +751,7 @@ fn measure(
         .count();
     let beam = Beam {
         centre: footprint.centre,
-        uncertainty,
+        uncertainty: (covariance[0][0] + covariance[1][1]).sqrt(),
         covariance,
         radii: footprint.radii,
         angle_deg: footprint.angle.to_degrees(),
@@ -851,31 +840,29 @@ fn window_footprint(
         centre,
         half,
     };
-    for _ in 0..20 {
+    // The moments of the window `centre ± half`, the offset of its light's centroid from
+    // `centre` and the variances about that centroid; `None` when it holds no light.
+    let moments = |centre: [f64; 2], half: [f64; 2]| {
         let m = window_moments(&window(centre, half));
         if m.s <= 0.0 {
             return None;
         }
-        let shift = [m.sx / m.s, m.sy / m.s];
+        let mean = [m.sx / m.s, m.sy / m.s];
+        let cxx = m.sxx / m.s - mean[0].powi(2);
+        let cyy = m.syy / m.s - mean[1].powi(2);
+        Some((m, mean, [cxx, cyy]))
+    };
+    for _ in 0..20 {
+        let (_, shift, var) = moments(centre, half)?;
         centre = [centre[0] + shift[0], centre[1] + shift[1]];
-        let var = [
-            (m.sxx / m.s - shift[0].powi(2)).max(MIN_MOMENT_VARIANCE_PX2),
-            (m.syy / m.s - shift[1].powi(2)).max(MIN_MOMENT_VARIANCE_PX2),
-        ];
-        half = var.map(half_for);
+        half = var.map(|v| half_for(v.max(MIN_MOMENT_VARIANCE_PX2)));
         if shift[0].hypot(shift[1]) < SETTLED_PX {
             break;
         }
     }
     // Moments about the final centre.
-    let m = window_moments(&window(centre, half));
-    if m.s <= 0.0 {
-        return None;
-    }
-    let mean = [m.sx / m.s, m.sy / m.s];
+    let (m, mean, [cxx, cyy]) = moments(centre, half)?;
     let centre = [centre[0] + mean[0], centre[1] + mean[1]];
-    let cxx = m.sxx / m.s - mean[0].powi(2);
-    let cyy = m.syy / m.s - mean[1].powi(2);
     let cxy = m.sxy / m.s - mean[0] * mean[1];
     let gxy = m.gxy - m.n * mean[0] * mean[1];
     // Light only adds: a spot spreads along every direction. Moments that do not (a
@@ -931,20 +918,18 @@ fn block_pixels(block: usize, grid: &Grid, picture: &Picture) -> impl Iterator<I
 fn roughness(picture: &Picture, grid: &Grid, blocks: &[usize], peak: f64) -> f64 {
     let w = picture.width();
     let light = picture.light();
-    let (mut differences, mut total, mut n) = (0.0, 0.0, 0.0);
-    for &b in blocks
+    let (differences, total, n) = blocks
         .iter()
         .filter(|&&b| f64::from(grid.means[b]) >= f64::from(CORE_SHARE) * peak)
-    {
-        for i in block_pixels(b, grid, picture) {
-            if i % w + 1 >= w || picture.saturated()[i] || picture.saturated()[i + 1] {
-                continue;
-            }
-            differences += f64::from((light[i + 1] - light[i]).abs());
-            total += f64::from(light[i]);
-            n += 1.0;
-        }
-    }
+        .flat_map(|&b| block_pixels(b, grid, picture))
+        .filter(|&i| i % w + 1 < w && !picture.saturated()[i] && !picture.saturated()[i + 1])
+        .fold((0.0, 0.0, 0.0), |(d, t, n), i| {
+            (
+                d + f64::from((light[i + 1] - light[i]).abs()),
+                t + f64::from(light[i]),
+                n + 1.0,
+            )
+        });
     if n == 0.0 || total <= 0.0 {
         return 0.0;
     }

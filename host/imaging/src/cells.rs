@@ -1,27 +1,30 @@
 //! Sums over a grid of square cells in one pass over an image's pixels, for a background fit,
-//! a noise map and the beam finder's blocks; and the cells around a cell of such a grid.
+//! a noise map, the beam finder's blocks and the sides of a frames' difference; and the
+//! cells around a cell of such a grid.
 
-/// The sums and pixel counts of an image's values over square cells, row-major.
-pub(crate) struct CellSums {
+/// The sums (of type `S`) and pixel counts of an image's values over square cells,
+/// row-major.
+pub(crate) struct CellSums<S> {
     pub columns: usize,
     pub rows: usize,
-    pub sums: Vec<f64>,
+    pub sums: Vec<S>,
     pub counts: Vec<f64>,
 }
 
-impl CellSums {
+impl<S: Clone + Default + std::ops::AddAssign> CellSums<S> {
     /// Sums `values` (row-major, `width` wide, `height` high) over cells of side `cell`
     /// (the last row and column of cells may be narrower), each cell's run of a row
-    /// summed by `run_sum` ([`f64_sum`], or faster in a narrower type).
+    /// summed by `run_sum` ([`f64_sum`], or faster in a narrower type) and added to the
+    /// cell's sum, which starts at `S::default()`.
     pub(crate) fn new<T>(
         values: &[T],
         width: usize,
         height: usize,
         cell: usize,
-        run_sum: impl Fn(&[T]) -> f64,
+        run_sum: impl Fn(&[T]) -> S,
     ) -> Self {
         let (columns, rows) = (width.div_ceil(cell), height.div_ceil(cell));
-        let mut sums = vec![0f64; columns * rows];
+        let mut sums = vec![S::default(); columns * rows];
         let mut counts = vec![0f64; columns * rows];
         for (y, row) in values.chunks_exact(width).enumerate() {
             let base = (y / cell) * columns;
@@ -37,7 +40,9 @@ impl CellSums {
             counts,
         }
     }
+}
 
+impl CellSums<f64> {
     /// Each cell's mean, row-major.
     pub(crate) fn means(&self) -> impl Iterator<Item = f64> + '_ {
         self.sums

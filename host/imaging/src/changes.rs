@@ -152,21 +152,18 @@ impl Shifted {
         }
         // Pixel x of the shifted picture reads source pixels `x - whole` and the one before,
         // the latter with weight `part`.
-        let split = |s: f64| {
+        let taps = |s: f64| {
             let whole = s.floor();
-            (whole as isize, (s - whole) as f32)
+            let part = (s - whole) as f32;
+            [(whole as isize, 1.0 - part), (whole as isize + 1, part)]
         };
-        let (wx, px) = split(shift[0]);
-        let (wy, py) = split(shift[1]);
-        let source = picture.light();
-        let saturated = picture.saturated();
-        let taps = |whole: isize, part: f32| [(whole, 1.0 - part), (whole + 1, part)];
+        let (x_taps, y_taps) = (taps(shift[0]), taps(shift[1]));
         let (light, unknown): (Vec<f32>, Vec<bool>) = (0..w * h)
             .map(|pixel| {
                 let (x, y) = (pixel % w, pixel / w);
                 let (mut sum, mut unknown) = (0f32, false);
-                for (dy, fy) in taps(wy, py) {
-                    for (dx, fx) in taps(wx, px) {
+                for (dy, fy) in y_taps {
+                    for (dx, fx) in x_taps {
                         let weight = fx * fy;
                         if weight == 0.0 {
                             continue;
@@ -177,8 +174,8 @@ impl Shifted {
                             continue;
                         }
                         let i = sy as usize * w + sx as usize;
-                        unknown |= saturated[i];
-                        sum += weight * source[i];
+                        unknown |= picture.saturated()[i];
+                        sum += weight * picture.light()[i];
                     }
                 }
                 (sum, unknown)
@@ -238,21 +235,16 @@ fn level_plane(difference: &[f32], w: usize, h: usize) -> [f64; 3] {
 /// has the opposite sign set to zero: a window measuring where light appeared must not sum
 /// the light that vanished nearby.
 fn one_side(difference: &[f32], w: usize, h: usize, sign: f32, noise: f64) -> Vec<f32> {
-    let (bw, bh) = (w.div_ceil(SIDE_BLOCK), h.div_ceil(SIDE_BLOCK));
-    let mut sums = vec![0f32; bw * bh];
-    let mut counts = vec![0f32; bw * bh];
-    for (y, row) in difference.chunks_exact(w).enumerate() {
-        let base = (y / SIDE_BLOCK) * bw;
-        for (b, chunk) in row.chunks(SIDE_BLOCK).enumerate() {
-            sums[base + b] += sign * chunk.iter().sum::<f32>();
-            counts[base + b] += chunk.len() as f32;
-        }
-    }
+    let blocks = CellSums::new(difference, w, h, SIDE_BLOCK, |run: &[f32]| {
+        sign * run.iter().sum::<f32>()
+    });
+    let (bw, bh) = (blocks.columns, blocks.rows);
     let limit = -(SIDE_NOISES * noise / SIDE_BLOCK as f64) as f32;
-    let opposite: Vec<bool> = sums
+    let opposite: Vec<bool> = blocks
+        .sums
         .iter()
-        .zip(&counts)
-        .map(|(s, n)| s / n.max(1.0) < limit)
+        .zip(&blocks.counts)
+        .map(|(s, &n)| s / (n as f32).max(1.0) < limit)
         .collect();
     let masked: Vec<bool> = (0..bw * bh)
         .map(|b| around(b, 1, bw, bh).any(|n| opposite[n]))

@@ -12,12 +12,11 @@ pub fn core_centre(picture: &Picture, beam: &Beam, share: f64) -> Option<[f64; 2
     let (w, h) = (picture.width(), picture.height());
     let level = (share * beam.peak) as f32;
     let half = CORE_WINDOW_RADII * beam.size().max(1.0);
-    let light = picture.light();
     let mut centre = beam.centre;
     for _ in 0..CORE_PASSES {
         let (mut s, mut sx, mut sy) = (0.0f64, 0.0f64, 0.0f64);
         for y in pixel_range(centre[1], half, h) {
-            let row = &light[y * w..(y + 1) * w];
+            let row = &picture.light()[y * w..(y + 1) * w];
             let (rs, rsx) = pixel_range(centre[0], half, w)
                 .map(|x| (row[x] - level, x as f32))
                 .filter(|&(above, _)| above > 0.0)
@@ -46,10 +45,9 @@ pub fn core_radius(
     let level = (share * beam.peak) as f32;
     let (w, h) = (picture.width(), picture.height());
     let reach = reach_radii * beam.size();
-    let light = picture.light();
     let bright = pixel_range(centre[1], reach, h)
         .flat_map(|y| pixel_range(centre[0], reach, w).map(move |x| y * w + x))
-        .filter(|&i| light[i] > level || picture.saturated()[i])
+        .filter(|&i| picture.light()[i] > level || picture.saturated()[i])
         .count();
     (bright as f64 / std::f64::consts::PI).sqrt()
 }

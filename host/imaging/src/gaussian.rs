@@ -71,9 +71,8 @@ impl GaussianFitter {
             return None;
         }
         let offset = [b, c].map(|k| -k / (2.0 * d));
-        let log_peak = a - d * (offset[0] * offset[0] + offset[1] * offset[1]);
+        let peak = (a - d * (offset[0] * offset[0] + offset[1] * offset[1])).exp();
         let residual = (self.weighted_square - solution.dot(&self.rhs)).max(0.0);
-        let peak = log_peak.exp();
         let fit = GaussianFit {
             centre: [0, 1].map(|i| self.origin[i] + offset[i] * self.scale),
             radius: (-2.0 / d).sqrt() * self.scale,

@@ -101,25 +101,22 @@ impl NoiseMap {
 
     /// The scatter of pixel (`x`, `y`), gray levels.
     pub fn at(&self, x: usize, y: usize) -> f32 {
-        let (cx, cy) = (
-            (x / NOISE_CELL).min(self.columns - 1),
-            (y / NOISE_CELL).min(self.rows - 1),
-        );
-        self.spread[cy * self.columns + cx]
+        // The cell holding pixel `v` along an axis of `cells` cells.
+        let cell = |v: usize, cells: usize| (v / NOISE_CELL).min(cells - 1);
+        self.spread[cell(y, self.rows) * self.columns + cell(x, self.columns)]
     }
 
     /// The scatter of `later - gain * earlier`, `self` being the later frame's map.
     pub(crate) fn of_difference(&self, earlier: &NoiseMap, gain: f64) -> Self {
         let gain = gain as f32;
         Self {
-            columns: self.columns,
-            rows: self.rows,
             spread: self
                 .spread
                 .iter()
                 .zip(&earlier.spread)
                 .map(|(a, b)| a.hypot(gain * b))
                 .collect(),
+            ..*self
         }
     }
 }

@@ -353,7 +353,7 @@ impl Plane {
         // A glow that bends across the frame: a quadratic surface from the plane's cells,
         // when it explains most of what the plane leaves.
         let quadratic = Surface { terms: 6, ..plane };
-        let (bowl, bowl_keep) = robust_surface(&cells, quadratic, keep.clone(), FIT_ROUNDS);
+        let (bowl, bowl_keep) = robust_surface(&cells, quadratic, keep, FIT_ROUNDS);
         let bowl_misfit = misfit_of(&bowl, &bowl_keep);
         if bowl_keep.iter().filter(|k| **k).count() >= MIN_QUADRATIC_CELLS
             && bowl_misfit <= QUADRATIC_GAIN * misfit
@@ -532,23 +532,20 @@ pub fn median(values: Vec<f64>) -> Option<f64> {
 
 /// The value with `share` of the others below it, or `None` when there are none.
 fn quantile_of(mut values: Vec<f64>, share: f64) -> Option<f64> {
-    if values.is_empty() {
-        return None;
-    }
-    let at = ((share * values.len() as f64) as usize).min(values.len() - 1);
+    let last = values.len().checked_sub(1)?;
+    let at = ((share * values.len() as f64) as usize).min(last);
     Some(*values.select_nth_unstable_by(at, f64::total_cmp).1)
 }
 
-/// A surface with `start`'s terms fitted to the cells from those in `keep`, rejecting and
+/// A surface with `surface`'s terms fitted to the cells from those in `keep`, rejecting and
 /// readmitting cells by their residuals for at most `rounds` rounds: the surface and the
 /// cells it kept.
 fn robust_surface(
     cells: &[Cell],
-    start: Surface,
+    mut surface: Surface,
     mut keep: Vec<bool>,
     rounds: usize,
 ) -> (Surface, Vec<bool>) {
-    let mut surface = start;
     for _ in 0..rounds {
         surface = least_squares_surface(cells, &keep, surface).unwrap_or(surface);
         let residuals: Vec<f64> = cells
@@ -619,13 +616,8 @@ fn remove_column_streaks(light: &mut [f32], width: usize, height: usize, noise: 
     };
     // Two bands between the top and bottom ones too: spots in the top and bottom bands of
     // the same columns leave a dark band between them.
-    let bands = [
-        0,
-        (height - band) / 3,
-        2 * (height - band) / 3,
-        height - band,
-    ]
-    .map(relative);
+    let bottom = height - band;
+    let bands = [0, bottom / 3, 2 * bottom / 3, bottom].map(relative);
     let offsets: Vec<f32> = (0..width)
         .map(|x| {
             // The smallest offset, taken only when every band agrees on its sign.

@@ -50,7 +50,6 @@ fn misfits(
 ) -> Option<[f64; 2]> {
     let (w, h) = (after.width(), after.height());
     let span = |c: f64, side: usize| pixel_range(c, half, side).step_by(SHIFT_STRIDE);
-    let light = after.light();
     let mut sums = [[0.0f64; 3]; 2];
     for y in span(centre[1], h) {
         for x in span(centre[0], w) {
@@ -62,7 +61,7 @@ fn misfits(
             let [Some(b0), Some(b1)] = shifts.map(|s| sample(before, point(s))) else {
                 continue;
             };
-            let a = f64::from(light[i]);
+            let a = f64::from(after.light()[i]);
             for (sum, b) in sums.iter_mut().zip([b0, b1]) {
                 sum[0] += a * a;
                 sum[1] += a * b;

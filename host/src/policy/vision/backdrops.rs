@@ -70,10 +70,10 @@ impl Backdrops {
     pub fn picture(&mut self, place: usize, frame: &Frame) -> Picture {
         let picture = Picture::new(frame);
         let slot = &mut self.places[place];
-        let Some((backdrop, strongest)) = &slot.backdrop else {
+        let Some(backdrop) = &slot.backdrop else {
             return self.borrow(place, frame, &picture).unwrap_or(picture);
         };
-        taken_off(backdrop, strongest, frame, &picture).unwrap_or_else(|| {
+        taken_off(backdrop, frame, &picture).unwrap_or_else(|| {
             *slot = Place::default();
             picture
         })
@@ -96,9 +96,7 @@ impl Backdrops {
             .rev()
             .filter_map(|p| p.backdrop.as_ref())
             .filter(|(_, strongest)| strongest.signal >= BESIDE_SHARE * brightest)
-            .find_map(|lent| {
-                taken_off(&lent.0, &lent.1, frame, picture).map(|clean| (lent.clone(), clean))
-            })?;
+            .find_map(|lent| taken_off(lent, frame, picture).map(|clean| (lent.clone(), clean)))?;
         self.places[place].backdrop = Some(lent);
         Some(clean)
     }
@@ -211,14 +209,9 @@ impl Backdrops {
         let Some(backdrop) = backdrop else {
             return Thrown::Failed;
         };
-        let Some(strongest) = find_beams(&after_picture.with_light(
-            backdrop.light_above(&after_picture),
-            after_picture.noise(),
-            after_picture.noise_map().clone(),
-        ))
-        .first()
-        .copied()
-        .filter(|s| s.signal > 0.0) else {
+        let light = backdrop.light_above(&after_picture);
+        let Some(strongest) = strongest_with(&after_picture, light).filter(|s| s.signal > 0.0)
+        else {
             return Thrown::Failed;
         };
         self.places[throw.place].backdrop = Some((backdrop, strongest));
@@ -231,8 +224,7 @@ impl Backdrops {
 /// more light than the frame (the frame's own light left out: beside a hole it would pull
 /// the hole's measuring window negative) by a share of that feature's light.
 fn taken_off(
-    backdrop: &Backdrop,
-    strongest: &Beam,
+    (backdrop, strongest): &(Backdrop, Beam),
     frame: &Frame,
     picture: &Picture,
 ) -> Option<Picture> {
@@ -243,11 +235,16 @@ fn taken_off(
         .iter()
         .map(|&v| if v > own { 0.0 } else { -v })
         .collect();
-    let holes = find_beams(&clean.with_light(negated, clean.noise(), clean.noise_map().clone()));
-    let hole = holes
-        .first()
-        .is_some_and(|h| h.signal >= HOLE_SHARE * strongest.signal);
+    let hole =
+        strongest_with(&clean, negated).is_some_and(|h| h.signal >= HOLE_SHARE * strongest.signal);
     (!hole).then_some(clean)
+}
+
+/// The strongest feature of `picture` with its light replaced by `light`.
+fn strongest_with(picture: &Picture, light: Vec<f32>) -> Option<Beam> {
+    find_beams(&picture.with_light(light, picture.noise(), picture.noise_map().clone()))
+        .first()
+        .copied()
 }
 
 #[cfg(test)]

@@ -12,11 +12,12 @@
 
 use nalgebra::{Matrix2, SMatrix, SVector, Vector2};
 
-use super::model::{Affine, Vec2};
+use super::model::{Affine, Vec2, distance};
 use super::tuning::{
     CHI2_MEDIAN, CORE_EXHAUSTIVE, CORE_SHARE, GATE_CONFIDENCE, PRIOR_BAND_PX,
     PRIOR_GAIN_PX_PER_STEP, PRIOR_OFFSET_PX, WIDENING_ROUNDS, WIDENING_SETTLED,
 };
+use crate::imaging::median;
 
 /// The chi-square quantile of two degrees of freedom at probability `p`: that distribution
 /// is exponential with mean 2, so `P(d² <= q) = 1 - exp(-q / 2)`.
@@ -211,17 +212,11 @@ pub fn squares(model: &Response, subset: &[Point]) -> f64 {
         .iter()
         .map(|p| {
             means.as_ref().map_or(f64::INFINITY, |mean| {
-                let [dx, dy] = miss(&mean(p.dir), p);
-                dx.powi(2) + dy.powi(2)
+                let at = mean(p.dir).predict(p.command);
+                (at[0] - p.image[0]).powi(2) + (at[1] - p.image[1]).powi(2)
             })
         })
         .sum()
-}
-
-/// Where `point` shows less where `map` puts it, px.
-fn miss(map: &Affine, point: &Point) -> Vec2 {
-    let at = map.predict(point.command);
-    [at[0] - point.image[0], at[1] - point.image[1]]
 }
 
 /// The model of the [`CORE_SHARE`] of `points` it fits best (at least `min_keep`), `None`
@@ -250,10 +245,8 @@ fn core(points: &[Point], noise: f64, min_keep: usize) -> Option<Response> {
     while subset.len() > keep {
         let worst = {
             let mean = model.means()?;
-            let misses = subset.iter().map(|p| {
-                let [dx, dy] = miss(&mean(p.dir), p);
-                dx.hypot(dy)
-            });
+            let off = |p: &Point| distance(mean(p.dir).predict(p.command), p.image);
+            let misses = subset.iter().map(off);
             misses.enumerate().max_by(|a, b| a.1.total_cmp(&b.1))?.0
         };
         subset.remove(worst);
@@ -280,12 +273,10 @@ pub fn robust_fit(points: &[Point], noise: f64, min_keep: usize) -> Option<Fit> 
         .iter()
         .map(|p| core.surprise(*p, r).unwrap_or(0.0))
         .collect();
-    let mut sorted = surprises.clone();
-    sorted.sort_by(f64::total_cmp);
     // The median innovation against the core starts the scatter's estimate; the core fits
     // its own sightings closer than a new one, so the estimate is then taken again from
     // the residuals of the sightings the test kept, until it no longer grows.
-    let mut widening = (sorted[sorted.len() / 2] / CHI2_MEDIAN).max(1.0);
+    let mut widening = (median(surprises.clone())? / CHI2_MEDIAN).max(1.0);
     let kept_at = |widening: f64| -> Vec<Point> {
         let gate = chi2_quantile(GATE_CONFIDENCE) * widening;
         let kept = points.iter().zip(&surprises).filter(|(_, d2)| **d2 <= gate);

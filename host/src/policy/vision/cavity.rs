@@ -75,20 +75,18 @@ impl CavityAgent {
         self.tracker.noise = self.scales.model_noise();
         let confirmed = !rejected && self.observe(&view, primary);
         self.previous = Some(view);
-        if matches!(self.last, Step::Final) {
+        let modelled = self.tracker.model().is_some();
+        if matches!(self.last, Step::Final) || (!modelled && remaining <= 1) {
             return self.send(self.command, Step::Final, false);
         }
-        let Some(_) = self.tracker.model() else {
-            if remaining <= 1 {
-                return self.send(self.command, Step::Final, false);
-            }
+        if !modelled {
             let u = if self.tracker.latest().is_none() && !self.tracker.missing.is_empty() {
                 self.search()
             } else {
                 self.tracker.next_probe([0.0, 0.0])
             };
             return self.send(u, Step::Probe, false);
-        };
+        }
         let aim = self
             .tracker
             .command_for(target, self.command)
@@ -119,8 +117,7 @@ impl CavityAgent {
             u = solve([-side[0], -side[1]]).unwrap_or(aim);
         }
         self.checks += 1;
-        let predicted = self.tracker.predict(u);
-        self.send(u, Step::Check(predicted), false)
+        self.send(u, Step::Check(self.tracker.predict(u)), false)
     }
 
     /// What the agent believes after its last decision, for the transcript: what the
@@ -151,8 +148,7 @@ impl CavityAgent {
     /// rings assumed shows the secondary only in a patch of commands smaller than their
     /// spacing, anywhere in the range, not only near the start.
     fn search(&self) -> Vec2 {
-        let spans = self.tracker.spans();
-        let step = spans.map(|s| CAVITY_SEARCH_SHARE * s);
+        let step = self.tracker.spans().map(|s| CAVITY_SEARCH_SHARE * s);
         let untried = |u: Vec2, spacing: Vec2| {
             !self
                 .tracker
@@ -165,14 +161,12 @@ impl CavityAgent {
         {
             return u;
         }
-        let mut spacing = step;
+        let mut half = step;
         for _ in 0..SEARCH_LEVELS {
-            let half = spacing.map(|s| s / 2.0);
+            half = half.map(|s| s / 2.0);
             let indices = |axis: usize| {
                 let [lo, hi] = self.tracker.range[axis];
-                let first = (lo / half[axis]).floor() as i64;
-                let last = (hi / half[axis]).ceil() as i64;
-                first..=last
+                (lo / half[axis]).floor() as i64..=(hi / half[axis]).ceil() as i64
             };
             // Each point, and whether it is an edge midpoint (an index even).
             let mut points: Vec<(bool, Vec2)> = indices(0)
@@ -189,7 +183,6 @@ impl CavityAgent {
             if let Some((_, u)) = points.into_iter().find(|&(_, u)| untried(u, half)) {
                 return u;
             }
-            spacing = half;
         }
         self.tracker.next_probe([0.0, 0.0])
     }

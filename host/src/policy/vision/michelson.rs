@@ -263,8 +263,7 @@ impl MichelsonAgent {
                 let response = distance(a, b) / step;
                 let wanted = self.useful_move(k, after.size());
                 if response > 0.0 {
-                    let length = (wanted / response).clamp(lo, hi);
-                    [length, length]
+                    [(wanted / response).clamp(lo, hi); 2]
                 } else {
                     scaled(PROBE_GROWTH)
                 }
@@ -388,14 +387,11 @@ impl MichelsonAgent {
         let border = BORDER_RADII * self.scales.radius(k);
         let at_border = (0..2).any(|a| centre[a] - (latest.image[a] - centre[a]).abs() < border);
         let merged = tracker.partial.iter().any(|s| s.order == latest.order) && !at_border;
-        if !merged {
-            return None;
-        }
         let stayed = self
             .stayed
             .iter()
             .min_by(|a, b| distance(**a, latest.image).total_cmp(&distance(**b, latest.image)));
-        Some((stayed.copied().unwrap_or(latest.image), latest.image))
+        merged.then_some((stayed.copied().unwrap_or(latest.image), latest.image))
     }
 
     /// Whether `view` shows a beam where beam `k` was last seen (within the match radius).
@@ -488,8 +484,7 @@ impl MichelsonAgent {
     fn probe(&mut self, k: usize, u: Vec2, centre: Vec2) -> Action {
         self.before = [self.mirror(0), self.mirror(1)];
         let parking = self.parking(k, centre);
-        let u = self.trackers[k].clamp(u);
-        self.set_mirror(k, u);
+        self.set_mirror(k, self.trackers[k].clamp(u));
         let parked = parking.map(|(v, now, landing)| {
             self.set_mirror(1 - k, v);
             (now, landing)
@@ -540,10 +535,8 @@ impl MichelsonAgent {
         let other = &mut self.trackers[j];
         other.set_probe(probe);
         other.search_grid = other.search_grid.or(grid);
-        let u = self.trackers[k].clamp(u);
-        let v = self.trackers[j].next_probe([0.0, 0.0]);
-        self.set_mirror(k, u);
-        self.set_mirror(j, v);
+        self.set_mirror(k, self.trackers[k].clamp(u));
+        self.set_mirror(j, self.trackers[j].next_probe([0.0, 0.0]));
         self.last = Step::Search { k };
         self.action(false)
     }
@@ -551,16 +544,14 @@ impl MichelsonAgent {
     /// Learns from a search: nothing seen is a miss for both mirrors; a beam that showed
     /// is told whose by the next move.
     fn observe_search(&mut self, before: &View, after: &View, k: usize) {
-        let moved = motion(before, after, self.scales.steady(), None, None);
-        match moved.to {
-            Some(seen) => self.appeared = Some(seen.beam),
-            None => {
-                self.observe_probe(before, after, k, None);
-                let j = 1 - k;
-                let v = self.mirror(j);
-                self.trackers[j].add_missing(v);
-            }
+        if let Some(seen) = motion(before, after, self.scales.steady(), None, None).to {
+            self.appeared = Some(seen.beam);
+            return;
         }
+        self.observe_probe(before, after, k, None);
+        let j = 1 - k;
+        let v = self.mirror(j);
+        self.trackers[j].add_missing(v);
     }
 
     /// Moves mirror `k` alone a short way (its first, cautious probe length along its
@@ -576,8 +567,7 @@ impl MichelsonAgent {
         } else {
             step
         };
-        let u = self.trackers[k].clamp([now[0] + towards_middle, now[1]]);
-        self.set_mirror(k, u);
+        self.set_mirror(k, self.trackers[k].clamp([now[0] + towards_middle, now[1]]));
         self.last = Step::Attribute { k, appeared };
         self.action(false)
     }
@@ -639,11 +629,10 @@ impl MichelsonAgent {
         let Some((solved, _)) = chosen else {
             return self.finish(centre, false);
         };
-        let mut predicted = [[0.0; 2]; 2];
-        for (k, u) in solved.into_iter().enumerate() {
-            self.set_mirror(k, u);
-            predicted[k] = self.trackers[k].predict(u).unwrap_or(centre);
-        }
+        let predicted = [0, 1].map(|k| {
+            self.set_mirror(k, solved[k]);
+            self.trackers[k].predict(solved[k]).unwrap_or(centre)
+        });
         self.last = Step::Check { predicted };
         self.action(false)
     }

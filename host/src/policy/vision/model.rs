@@ -445,15 +445,10 @@ impl Tracker {
     /// pitch error or hysteresis leaves a scatter of a few noise levels that a band can fit
     /// in part). True when a band was taken: every prediction changes.
     pub fn estimate_band(&mut self) -> bool {
-        let side = |axis: usize, sign: f64| {
-            self.clean
-                .iter()
-                .filter(|s| s.dir[axis] * sign > 0.0)
-                .count()
-        };
         let eligible = [0, 1].map(|a| {
-            side(a, 1.0) + side(a, -1.0) >= BAND_MIN_SIGHTINGS
-                && side(a, 1.0).min(side(a, -1.0)) >= BAND_PER_SIDE
+            let [plus, minus] =
+                [1.0, -1.0].map(|sign| self.clean.iter().filter(|s| s.dir[a] * sign > 0.0).count());
+            plus + minus >= BAND_MIN_SIGHTINGS && plus.min(minus) >= BAND_PER_SIDE
         });
         let with = self.points([0, 1].map(|a| self.band[a] || eligible[a]));
         let freedom = bench::residual_freedom(&with);
@@ -584,7 +579,7 @@ impl Tracker {
                 })
                 .collect();
             // Axes not yet spanned first.
-            dirs.sort_by_key(|d| usize::from(spans(usize::from(d[1] != 0.0))));
+            dirs.sort_by_key(|d| spans(usize::from(d[1] != 0.0)));
             PROBE_MULTIPLES
                 .into_iter()
                 .flat_map(|m| dirs.iter().map(move |d| [0, 1].map(|a| base[a] + m * d[a])))
@@ -735,13 +730,12 @@ impl Tracker {
         let far = sights
             .iter()
             .max_by(|a, b| distance(a.command, base).total_cmp(&distance(b.command, base)))?;
-        let (other, other_seen) = (far.command, far.image);
-        let span = distance(other, base);
+        let span = distance(far.command, base);
         if span < self.min_spread {
             return None;
         }
-        let along = [(other[0] - base[0]) / span, (other[1] - base[1]) / span];
-        let response = [0, 1].map(|a| (other_seen[a] - seen[a]) / span);
+        let along = [0, 1].map(|a| (far.command[a] - base[a]) / span);
+        let response = [0, 1].map(|a| (far.image[a] - seen[a]) / span);
         let strength = response[0].powi(2) + response[1].powi(2);
         if strength < 1e-12 {
             return None;

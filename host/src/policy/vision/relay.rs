@@ -218,30 +218,26 @@ impl RelayAgent {
             .filter(|b| !self.stray_near(b.centre, STRAY_RADII * radius.max(b.size())))
             .copied()
             .collect();
-        let Some((before, _, tilts)) = self.previous.as_ref().filter(|p| p.1 == self.station)
-        else {
-            return strongest(&candidates).copied();
-        };
         let steady = RELAY_STEADY_RADII * radius;
-        if *tilts != self.cumulative {
-            let moved = motion(before, view, steady, None, None);
-            // A short move shows only as a change next to the spot, not as the spot: the
-            // spot itself is then the strongest feature, as when nothing moved. A faint
-            // change far from the light (speckle shifting) is not the beam either.
-            let strongest_light = strongest(&candidates).map_or(0.0, |b| b.signal);
-            if let Some(seen) = moved
+        // A short move shows only as a change next to the spot, not as the spot: the spot
+        // itself is then the strongest feature, as when nothing moved. A faint change far
+        // from the light (speckle shifting) is not the beam either.
+        let strongest_light = strongest(&candidates).map_or(0.0, |b| b.signal);
+        if let Some((before, station, tilts)) = &self.previous
+            && *station == self.station
+            && *tilts != self.cumulative
+            && let Some(seen) = motion(before, view, steady, None, None)
                 .to
                 .filter(|seen| seen.whole && seen.beam.signal >= MOVED_SHARE * strongest_light)
-            {
-                // Something moved with the tilt: what stayed is stray light.
-                for (i, _) in stationary_pairs(&before.beams, &view.beams, steady) {
-                    let p = before.beams[i].centre;
-                    if !self.stray_near(p, STRAY_RADII * radius) {
-                        self.stray.push((self.station, p));
-                    }
+        {
+            // Something moved with the tilt: what stayed is stray light.
+            for (i, _) in stationary_pairs(&before.beams, &view.beams, steady) {
+                let p = before.beams[i].centre;
+                if !self.stray_near(p, STRAY_RADII * radius) {
+                    self.stray.push((self.station, p));
                 }
-                return Some(seen.beam);
             }
+            return Some(seen.beam);
         }
         strongest(&candidates).copied()
     }
@@ -251,13 +247,6 @@ impl RelayAgent {
         self.stray
             .iter()
             .any(|(s, q)| *s == self.station && distance(*q, p) < within)
-    }
-
-    /// The shortest and longest probe or step of a servo, steps: shares of the command
-    /// range.
-    fn probe_bounds(&self) -> Vec2 {
-        let range = 2.0 * f64::from(self.limits.max_cumulative);
-        RELAY_PROBE_SHARES.map(|share| share * range)
     }
 
     /// The next action of a throw under way (`None`: none is): on the frame after a
@@ -371,7 +360,8 @@ impl RelayAgent {
             (Some(response), Some(side)) => useful_probe(side, response),
             _ => CAUTIOUS_SHARE * range,
         };
-        Servo::new(probe, self.probe_bounds(), gain)
+        // The shortest and longest probe or step: shares of the command range.
+        Servo::new(probe, RELAY_PROBE_SHARES.map(|share| share * range), gain)
     }
 
     /// The servo of the current mirror's near station: it starts from the latest near
@@ -443,8 +433,7 @@ impl RelayAgent {
             let probe = self.search.probe.map(|p| (p * SEARCH_GROWTH).min(widest));
             self.search.set_probe(probe);
         }
-        let next = self.search.next_probe(self.near_start);
-        self.tilt_to(next)
+        self.tilt_to(self.search.next_probe(self.near_start))
     }
 
     /// At the far station: the servo drives the spot to the centre with the response scaled
@@ -614,12 +603,11 @@ impl RelayAgent {
     /// The tilt of [`Self::tilt_to`] (at most the longest allowed per axis), and whether
     /// it gets the command there.
     fn tilt_towards(&self, target: Vec2) -> (RelayAction, bool) {
-        let m = self.mirror;
         let step = f64::from(self.limits.max_step);
         let bound = f64::from(self.limits.max_cumulative);
-        let u = self.command_of(m);
+        let u = self.command_of(self.mirror);
         let wanted = [0, 1].map(|a| target[a].clamp(-bound, bound) - u[a]);
-        let tilt = tilt_by(m, wanted.map(|w| w.clamp(-step, step).round()));
+        let tilt = tilt_by(self.mirror, wanted.map(|w| w.clamp(-step, step).round()));
         (tilt, wanted.iter().all(|w| w.abs() <= step))
     }
 

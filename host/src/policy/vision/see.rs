@@ -38,8 +38,7 @@ impl View {
 
     /// The image centre, px.
     pub fn centre(&self) -> Vec2 {
-        let [w, h] = self.size();
-        [w / 2.0, h / 2.0]
+        self.size().map(|s| s / 2.0)
     }
 }
 
@@ -142,7 +141,7 @@ pub fn motion_in(
                       side: fn(&(usize, usize)) -> usize,
                       avoid: Option<Vec2>|
      -> Vec<Beam> {
-        let real: Vec<Beam> = blobs
+        let mut real: Vec<Beam> = blobs
             .iter()
             .filter(|b| !residue(b, pairs.iter().map(|p| &beams[side(p)]), SEE_RESIDUE_SHARE))
             .copied()
@@ -152,17 +151,14 @@ pub fn motion_in(
                 .filter(|b| distance(b.centre, p) < APART_RADII * b.size())
                 .map(|b| b.centre)
         });
-        real.into_iter()
-            .filter(|b| Some(b.centre) != nearest_avoided)
-            .collect()
+        real.retain(|b| Some(b.centre) != nearest_avoided);
+        real
     };
     let appeared = candidates(&moved.appeared, &after.beams, |p| p.1, avoid.map(|a| a.1));
     let vanished = candidates(&moved.vanished, &before.beams, |p| p.0, avoid.map(|a| a.0));
-    let to = match expected {
-        Some(point) => nearest(&appeared, point),
-        None => strongest(&appeared),
-    }
-    .copied();
+    let to = expected
+        .map_or_else(|| strongest(&appeared), |point| nearest(&appeared, point))
+        .copied();
     let from = match to {
         Some(t) => vanished
             .iter()

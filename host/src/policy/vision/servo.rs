@@ -184,22 +184,10 @@ impl Servo {
             let error = self.error(&best.spot, target, side);
             self.best = Some(Best { error, ..best });
         }
-        if let (
-            Pending::Probe {
-                axis,
-                sign,
-                flipped,
-            },
-            None,
-        ) = (self.pending, seen)
-        {
+        if let (Pending::Probe { sign, flipped, .. }, None) = (&mut self.pending, seen) {
             // Lost: the other way, then shorter.
-            self.pending = Pending::Probe {
-                axis,
-                sign: -sign,
-                flipped: true,
-            };
-            if flipped {
+            *sign = -*sign;
+            if std::mem::replace(flipped, true) {
                 self.probe = (self.probe / SERVO_GROWTH).max(self.bounds[0]);
             }
             return;
@@ -256,64 +244,59 @@ impl Servo {
     /// towards `target` from the best tilt; `None` before the spot was ever seen.
     pub fn next(&mut self, target: Vec2) -> Option<Vec2> {
         let best = self.best?;
-        match self.steering() {
-            None => {
-                let axis = usize::from(self.probed[0]);
-                let (sign, flipped) = match self.pending {
-                    Pending::Probe {
-                        axis: a,
-                        sign,
-                        flipped,
-                    } if a == axis => (sign, flipped),
-                    _ => (self.probe_sign, false),
-                };
-                self.pending = Pending::Probe {
-                    axis,
+        let Some(gain) = self.steering() else {
+            let axis = usize::from(self.probed[0]);
+            let (sign, flipped) = match self.pending {
+                Pending::Probe {
+                    axis: a,
                     sign,
                     flipped,
-                };
-                let mut tilt = best.tilt;
-                tilt[axis] += sign * self.probe;
-                Some(tilt)
-            }
-            Some(gain) => {
-                let step = Affine {
-                    offset: best.spot.at,
-                    gain,
-                }
-                .solve(target)?;
-                let length = step[0].hypot(step[1]);
-                let scale = (self.radius / length.max(1e-9)).min(1.0);
-                let proposal = [0, 1].map(|a| best.tilt[a] + step[a] * scale);
-                // The tilt just looked at, to within a step, where the caller found the spot
-                // off the target: the response cannot get it any closer.
-                let standing_still = self.last.is_some_and(|tilt| {
-                    (tilt[0] - proposal[0]).abs() < SAME_STEP
-                        && (tilt[1] - proposal[1]).abs() < SAME_STEP
-                });
-                if (length < self.bounds[0] && !best.spot.whole) || standing_still {
-                    // A spot the response says is where it should be, when it is cut or was
-                    // just seen off the target: the response is wrong. Probe again from the
-                    // best tilt, longer from a cut spot (they show more of it); refuted from
-                    // the same best tilt again, not with the probes that gave it twice
-                    // (they would give it for ever), but the other way round.
-                    self.drop_gain();
-                    if self
-                        .refuted_at
-                        .is_some_and(|at| distance(at, best.tilt) < SAME_STEP)
-                    {
-                        self.probe_sign = -self.probe_sign;
-                    }
-                    self.refuted_at = Some(best.tilt);
-                    if !best.spot.whole {
-                        self.probe = (self.probe * SERVO_GROWTH).min(self.bounds[1]);
-                    }
-                    return self.next(target);
-                }
-                self.pending = Pending::Step;
-                Some(proposal)
-            }
+                } if a == axis => (sign, flipped),
+                _ => (self.probe_sign, false),
+            };
+            self.pending = Pending::Probe {
+                axis,
+                sign,
+                flipped,
+            };
+            let mut tilt = best.tilt;
+            tilt[axis] += sign * self.probe;
+            return Some(tilt);
+        };
+        let step = Affine {
+            offset: best.spot.at,
+            gain,
         }
+        .solve(target)?;
+        let length = step[0].hypot(step[1]);
+        let scale = (self.radius / length.max(1e-9)).min(1.0);
+        let proposal = [0, 1].map(|a| best.tilt[a] + step[a] * scale);
+        // The tilt just looked at, to within a step, where the caller found the spot off the
+        // target: the response cannot get it any closer.
+        let standing_still = self
+            .last
+            .is_some_and(|tilt| (0..2).all(|a| (tilt[a] - proposal[a]).abs() < SAME_STEP));
+        if (length < self.bounds[0] && !best.spot.whole) || standing_still {
+            // A spot the response says is where it should be, when it is cut or was just seen
+            // off the target: the response is wrong. Probe again from the best tilt, longer
+            // from a cut spot (they show more of it); refuted from the same best tilt again,
+            // not with the probes that gave it twice (they would give it for ever), but the
+            // other way round.
+            self.drop_gain();
+            if self
+                .refuted_at
+                .is_some_and(|at| distance(at, best.tilt) < SAME_STEP)
+            {
+                self.probe_sign = -self.probe_sign;
+            }
+            self.refuted_at = Some(best.tilt);
+            if !best.spot.whole {
+                self.probe = (self.probe * SERVO_GROWTH).min(self.bounds[1]);
+            }
+            return self.next(target);
+        }
+        self.pending = Pending::Step;
+        Some(proposal)
     }
 }
 

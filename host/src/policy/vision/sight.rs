@@ -152,10 +152,9 @@ pub fn sight(
         let corner = near(f.centre[0], w) && near(f.centre[1], h);
         f.misfit < MAX_MISFIT && beyond < MAX_EXTRAPOLATION * f.radius && alike && !corner
     });
-    match trusted {
-        Some(fit) => Sighting::Fitted(fit.centre),
-        None => Sighting::Partial(beam.centre),
-    }
+    trusted.map_or(Sighting::Partial(beam.centre), |fit| {
+        Sighting::Fitted(fit.centre)
+    })
 }
 
 #[cfg(test)]
