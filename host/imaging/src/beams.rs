@@ -149,12 +149,12 @@ pub fn find_faint_beams(picture: &Picture, radius: f64) -> Vec<Beam> {
 /// joined into beams by `joining`.
 fn beams_in(picture: &Picture, reach: usize, joining: Joining) -> Vec<Beam> {
     let grid = Grid::new(picture, reach);
-    let groups = join_regions(picture, &grid, &grid.regions(), joining);
+    let groups = join_regions(&grid, &grid.regions(), joining);
     let owner = grid.partition(&groups);
     let mut beams: Vec<Beam> = groups
         .iter()
         .enumerate()
-        .filter_map(|(id, (blocks, parts))| measure(picture, &grid, &owner, id, blocks, *parts))
+        .filter_map(|(id, (blocks, parts))| measure(&grid, &owner, id, blocks, *parts))
         .collect();
     beams.sort_by(|a, b| b.signal.total_cmp(&a.signal));
     let strongest = beams.first().map_or(0.0, |b| b.signal);
@@ -162,8 +162,10 @@ fn beams_in(picture: &Picture, reach: usize, joining: Joining) -> Vec<Beam> {
     beams
 }
 
-/// The picture reduced to block means.
-struct Grid {
+/// A picture reduced to block means.
+struct Grid<'a> {
+    /// The picture the blocks are of.
+    picture: &'a Picture,
     bw: usize,
     bh: usize,
     means: Vec<f32>,
@@ -187,9 +189,9 @@ struct Region {
     centre: [f64; 2],
 }
 
-impl Grid {
+impl<'a> Grid<'a> {
     /// The picture's blocks, each averaged with the blocks within `reach` of it.
-    fn new(picture: &Picture, reach: usize) -> Self {
+    fn new(picture: &'a Picture, reach: usize) -> Self {
         let (width, height) = (picture.width(), picture.height());
         let blocks = CellSums::new(picture.light(), width, height, BLOCK, |run: &[f32]| {
             f64::from(run.iter().sum::<f32>())
@@ -233,6 +235,7 @@ impl Grid {
             (box_means(&means, bw, bh, reach), smooth_noise)
         };
         Self {
+            picture,
             bw,
             bh,
             means,
@@ -433,14 +436,9 @@ fn box_means(values: &[f32], bw: usize, bh: usize, reach: usize) -> Vec<f32> {
 /// Groups regions that belong to one beam: cores close relative to their distance, peaks
 /// alike, and with [`Joining::AcrossDarkValley`] a dark valley between them. Each group:
 /// its regions' blocks, and how many regions it joins.
-fn join_regions(
-    picture: &Picture,
-    grid: &Grid,
-    regions: &[Region],
-    joining: Joining,
-) -> Vec<(Vec<usize>, usize)> {
+fn join_regions(grid: &Grid, regions: &[Region], joining: Joining) -> Vec<(Vec<usize>, usize)> {
     let tails: Vec<Option<Tail>> = match joining {
-        Joining::AcrossDarkValley => regions.iter().map(|r| Tail::of(picture, grid, r)).collect(),
+        Joining::AcrossDarkValley => regions.iter().map(|r| Tail::of(grid, r)).collect(),
         Joining::Near => Vec::new(),
     };
     let mut parent: Vec<usize> = (0..regions.len()).collect();
@@ -459,8 +457,7 @@ fn join_regions(
             }
             let distance = (ra.centre[0] - rb.centre[0]).hypot(ra.centre[1] - rb.centre[1]);
             if core_gap(grid, ra, rb, JOIN_GAP_SHARE * distance)
-                && (joining == Joining::Near
-                    || dark_between(grid, (ra, &tails[a]), (rb, &tails[b])))
+                && (joining == Joining::Near || dark_between(grid, ra, rb, [&tails[a], &tails[b]]))
             {
                 let (x, y) = (root(&mut parent, a), root(&mut parent, b));
                 parent[x] = y;
@@ -482,19 +479,15 @@ fn join_regions(
     groups
 }
 
-/// Whether the light on the line between two regions' centres falls to a node, darker
-/// than two separate beams could make it: two beams side by side add their light, so
-/// between them it is at least the sum of their tails (each region taken for a Gaussian of
-/// its own peak and block moments); the lobes of one mode, or the stripes of a beam crossed
-/// by dark fringes, cancel there. Joined when some point of the line is below
+/// Whether the light on the line between the centres of regions `a` and `b` falls to a
+/// node, darker than two separate beams could make it: two beams side by side add their
+/// light, so between them it is at least the sum of their `tails` (each region taken for a
+/// Gaussian of its own peak and block moments); the lobes of one mode, or the stripes of a
+/// beam crossed by dark fringes, cancel there. Joined when some point of the line is below
 /// [`JOIN_NODE_SHARE`] of that sum, beyond the noise. A saturated region's true peak is
 /// unknown (its tail cannot be predicted): its valley is not judged.
-fn dark_between(
-    grid: &Grid,
-    (a, tail_a): (&Region, &Option<Tail>),
-    (b, tail_b): (&Region, &Option<Tail>),
-) -> bool {
-    let (Some(tail_a), Some(tail_b)) = (tail_a, tail_b) else {
+fn dark_between(grid: &Grid, a: &Region, b: &Region, tails: [&Option<Tail>; 2]) -> bool {
+    let [Some(tail_a), Some(tail_b)] = tails else {
         return true;
     };
     let length = (b.centre[0] - a.centre[0]).hypot(b.centre[1] - a.centre[1]);
@@ -520,14 +513,11 @@ fn block_moments(grid: &Grid, blocks: &[usize]) -> Option<([f64; 2], [f64; 3])> 
         return None;
     }
     let centre = [sx / s, sy / s];
-    let mut moments = [0.0; 3];
-    for &b in blocks {
+    let moments = blocks.iter().fold([0.0; 3], |[xx, yy, xy], &b| {
         let (v, c) = (light(b), grid.centre_of(b));
-        let d = [c[0] - centre[0], c[1] - centre[1]];
-        moments[0] += v * d[0] * d[0];
-        moments[1] += v * d[1] * d[1];
-        moments[2] += v * d[0] * d[1];
-    }
+        let [dx, dy] = [c[0] - centre[0], c[1] - centre[1]];
+        [xx + v * dx * dx, yy + v * dy * dy, xy + v * dx * dy]
+    });
     Some((centre, moments.map(|m| m / s)))
 }
 
@@ -542,9 +532,9 @@ struct Tail {
 
 impl Tail {
     /// `None` when the region is saturated or its blocks do not spread along both axes.
-    fn of(picture: &Picture, grid: &Grid, region: &Region) -> Option<Self> {
+    fn of(grid: &Grid, region: &Region) -> Option<Self> {
         let brightest = brightest_block(&grid.means, &region.blocks)?;
-        if block_pixels(brightest, grid, picture).any(|p| picture.saturated()[p]) {
+        if block_pixels(brightest, grid).any(|p| grid.picture.saturated()[p]) {
             return None;
         }
         let (centre, [cxx, cyy, cxy]) = block_moments(grid, &region.blocks)?;
@@ -597,8 +587,7 @@ struct Moments {
 /// Where one beam is measured: the pixels beam `id` owns (by `owner`, on `grid`'s blocks)
 /// in the window `centre ± half`.
 struct Window<'a> {
-    picture: &'a Picture,
-    grid: &'a Grid,
+    grid: &'a Grid<'a>,
     owner: &'a [u32],
     id: u32,
     centre: [f64; 2],
@@ -608,7 +597,7 @@ struct Window<'a> {
 /// The pixels of `window` (above the moment floor), as runs along rows:
 /// `visit(y, x_from, light)` for each, `light` the run's pixels.
 fn owned_runs(window: &Window, mut visit: impl FnMut(usize, usize, &[f32])) {
-    let (picture, grid) = (window.picture, window.grid);
+    let (picture, grid) = (window.grid.picture, window.grid);
     let (w, light) = (picture.width(), picture.light());
     let span = |axis: usize, side: usize| pixel_range(window.centre[axis], window.half[axis], side);
     let (xs, ys) = (span(0, w), span(1, picture.height()));
@@ -710,18 +699,12 @@ fn split_covariance(window: &Window, cell: usize) -> Option<[[f64; 2]; 2]> {
 }
 
 /// Measures beam `id` (its region blocks `blocks`, `parts` regions).
-fn measure(
-    picture: &Picture,
-    grid: &Grid,
-    owner: &[u32],
-    id: usize,
-    blocks: &[usize],
-    parts: usize,
-) -> Option<Beam> {
+fn measure(grid: &Grid, owner: &[u32], id: usize, blocks: &[usize], parts: usize) -> Option<Beam> {
+    let picture = grid.picture;
     let footprint = if grid.reach > 1 {
         faint_footprint(grid, blocks)?
     } else {
-        window_footprint(picture, grid, owner, id as u32, blocks)?
+        window_footprint(grid, owner, id as u32, blocks)?
     };
     // cov(cx, cy) = σ² Σ (x - cx)(y - cy) / S², σ the read noise and the background's
     // misfit together (each pixel's light is known no better than its background).
@@ -746,7 +729,7 @@ fn measure(
     let clipped = at_border > CLIPPED_SHARE * smooth_peak;
     let saturated_pixels = blocks
         .iter()
-        .flat_map(|&b| block_pixels(b, grid, picture))
+        .flat_map(|&b| block_pixels(b, grid))
         .filter(|&i| picture.saturated()[i])
         .count();
     let beam = Beam {
@@ -760,13 +743,11 @@ fn measure(
         saturated: saturated_pixels >= SATURATED_PIXELS,
         clipped,
         edge_level: (at_border / smooth_peak.max(1e-9)).clamp(0.0, 1.0),
-        localised: roughness(picture, grid, blocks, peak) < MAX_SPOT_ROUGHNESS,
+        localised: roughness(grid, blocks, peak) < MAX_SPOT_ROUGHNESS,
         parts,
         fit: None,
     };
-    let fit = clipped
-        .then(|| fit_gaussian(picture, grid, blocks, &beam))
-        .flatten();
+    let fit = clipped.then(|| fit_gaussian(grid, blocks, &beam)).flatten();
     Some(Beam { fit, ..beam })
 }
 
@@ -820,23 +801,16 @@ struct Footprint {
 
 /// The footprint of beam `id` (its region blocks `blocks`) from its pixels' moments in a
 /// window of [`MOMENT_WINDOW_RADII`] second-moment radii, iterated until it settles.
-fn window_footprint(
-    picture: &Picture,
-    grid: &Grid,
-    owner: &[u32],
-    id_u32: u32,
-    blocks: &[usize],
-) -> Option<Footprint> {
+fn window_footprint(grid: &Grid, owner: &[u32], id: u32, blocks: &[usize]) -> Option<Footprint> {
     // Start from the blocks' own moments.
     let (mut centre, [vxx, vyy, _]) = block_moments(grid, blocks)?;
     // Half the window's side along an axis where the light's variance is `v`.
     let half_for = |v: f64| MOMENT_WINDOW_RADII * (2.0 * v.sqrt()).max(BLOCK as f64);
     let mut half = [vxx, vyy].map(half_for);
     let window = |centre, half| Window {
-        picture,
         grid,
         owner,
-        id: id_u32,
+        id,
         centre,
         half,
     };
@@ -906,22 +880,22 @@ fn with_texture(read: [[f64; 2]; 2], split: [[f64; 2]; 2]) -> [[f64; 2]; 2] {
     ]
 }
 
-/// The row-major pixel indices of a block of `picture`.
-fn block_pixels(block: usize, grid: &Grid, picture: &Picture) -> impl Iterator<Item = usize> {
-    let (w, h) = (picture.width(), picture.height());
+/// The row-major pixel indices of a block of `grid`'s picture.
+fn block_pixels(block: usize, grid: &Grid) -> impl Iterator<Item = usize> {
+    let (w, h) = (grid.picture.width(), grid.picture.height());
     let (x0, y0) = ((block % grid.bw) * BLOCK, (block / grid.bw) * BLOCK);
     (y0..(y0 + BLOCK).min(h)).flat_map(move |y| (x0..(x0 + BLOCK).min(w)).map(move |x| y * w + x))
 }
 
 /// Mean absolute difference of horizontal neighbours beyond what the noise gives, over the
 /// mean light, on the beam's bright blocks: small for a smooth spot, large for speckle.
-fn roughness(picture: &Picture, grid: &Grid, blocks: &[usize], peak: f64) -> f64 {
-    let w = picture.width();
-    let light = picture.light();
+fn roughness(grid: &Grid, blocks: &[usize], peak: f64) -> f64 {
+    let picture = grid.picture;
+    let (w, light) = (picture.width(), picture.light());
     let (differences, total, n) = blocks
         .iter()
         .filter(|&&b| f64::from(grid.means[b]) >= f64::from(CORE_SHARE) * peak)
-        .flat_map(|&b| block_pixels(b, grid, picture))
+        .flat_map(|&b| block_pixels(b, grid))
         .filter(|&i| i % w + 1 < w && !picture.saturated()[i] && !picture.saturated()[i + 1])
         .fold((0.0, 0.0, 0.0), |(d, t, n), i| {
             (
@@ -940,18 +914,13 @@ fn roughness(picture: &Picture, grid: &Grid, blocks: &[usize], peak: f64) -> f64
 
 /// A Gaussian fitted to the beam's unsaturated block means (sixteen pixels average the
 /// noise down fourfold; a beam varies little across a block).
-fn fit_gaussian(
-    picture: &Picture,
-    grid: &Grid,
-    blocks: &[usize],
-    beam: &Beam,
-) -> Option<GaussianFit> {
-    let block_noise = picture.noise() / BLOCK as f64;
+fn fit_gaussian(grid: &Grid, blocks: &[usize], beam: &Beam) -> Option<GaussianFit> {
+    let block_noise = grid.picture.noise() / BLOCK as f64;
     let floor = (FIT_FLOOR_NOISES * block_noise).max(FIT_FLOOR_SHARE * beam.peak);
     let mut fitter = GaussianFitter::new(beam.centre, beam.size());
     for &b in blocks {
         let mean = f64::from(grid.means[b]);
-        if mean <= floor || block_pixels(b, grid, picture).any(|i| picture.saturated()[i]) {
+        if mean <= floor || block_pixels(b, grid).any(|i| grid.picture.saturated()[i]) {
             continue;
         }
         fitter.add(grid.centre_of(b), mean);

@@ -66,16 +66,13 @@ fn changes_found(
     }
     let (w, h) = (after.width(), after.height());
     let earlier = Shifted::new(before, shift);
-    let (a, b) = (after.light(), &earlier.light);
+    let b = &earlier.light;
     let known = |i: usize| !earlier.unknown[i] && !after.saturated()[i];
     // Each picture's light is taken above its own background, and two fits of a bright,
     // structured background may settle a few gray levels apart: the later picture's light
     // is put on the earlier one's background, and what is then left of the change over
     // the whole frame (a plane) is the room's light that rose or fell.
-    let mut stayed = background_drop(before, after, shift);
-    for (lower, a) in stayed.iter_mut().zip(a) {
-        *lower = a - *lower;
-    }
+    let mut stayed = on_earlier_background(before, after, shift);
     let difference = |stayed: &[f32], g: f32| -> Vec<f32> {
         (0..w * h)
             .map(|i| if known(i) { stayed[i] - g * b[i] } else { 0.0 })
@@ -94,7 +91,7 @@ fn changes_found(
     let noise_map = after.noise_map().of_difference(before.noise_map(), gain);
     let side = |sign: f32| {
         let light = one_side(&difference, w, h, sign, noise);
-        let picture = Picture::from_light(w, h, light, noise, noise_map.clone());
+        let picture = after.with_difference(light, noise, noise_map.clone());
         match faint {
             Some(radius) => find_faint_beams(&picture, radius),
             None => find_changed(&picture),
@@ -108,16 +105,17 @@ fn changes_found(
     }
 }
 
-/// How much lower `after`'s background lies than `before`'s (taken at the scene's `shift`)
-/// at every pixel, gray levels: both are smooth surfaces, so each row is evaluated every
-/// [`BACKGROUND_STRIDE`] pixels and interpolated between.
-fn background_drop(before: &Picture, after: &Picture, shift: [f64; 2]) -> Vec<f32> {
-    let (w, h) = (after.width(), after.height());
+/// `after`'s light on `before`'s background (taken at the scene's `shift`), gray levels:
+/// at every pixel, the light less how much lower `after`'s background lies there. Both
+/// backgrounds are smooth surfaces, so how much lower is evaluated every
+/// [`BACKGROUND_STRIDE`] pixels of each row and interpolated between.
+fn on_earlier_background(before: &Picture, after: &Picture, shift: [f64; 2]) -> Vec<f32> {
+    let w = after.width();
     let drop = |x: f64, y: f64| {
         before.background_at(x - shift[0], y - shift[1]) - after.background_at(x, y)
     };
-    let mut out = Vec::with_capacity(w * h);
-    for y in 0..h {
+    let mut out = Vec::with_capacity(after.light().len());
+    for (y, light) in after.light().chunks_exact(w).enumerate() {
         let y = y as f64 + 0.5;
         let mut x0 = 0;
         let mut left = drop(0.5, y);
@@ -126,7 +124,8 @@ fn background_drop(before: &Picture, after: &Picture, shift: [f64; 2]) -> Vec<f3
             let right = drop(x1 as f64 + 0.5, y);
             let span = (x1 - x0).max(1) as f64;
             let end = if x1 == w - 1 { w } else { x1 };
-            out.extend((x0..end).map(|x| (left + (right - left) * (x - x0) as f64 / span) as f32));
+            let lower = |x: usize| (left + (right - left) * (x - x0) as f64 / span) as f32;
+            out.extend((x0..end).map(|x| light[x] - lower(x)));
             (x0, left) = (end, right);
         }
     }

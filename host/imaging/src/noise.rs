@@ -67,19 +67,13 @@ impl NoiseMap {
         }
     }
 
-    /// The scatter of the pixels of `raw` (row-major, `width` wide, `level_per_count` gray
-    /// levels a count) whose read noise is `noise` and which black clips: per cell, that of
-    /// a clipped normal distribution at the cell's mean level. Below black the values are a
-    /// few rare pixels, far from any normal distribution: the scatter is never taken below
-    /// that at black itself.
-    pub(crate) fn clipped(
-        raw: &[u16],
-        width: usize,
-        height: usize,
-        noise: f64,
-        level_per_count: f64,
-    ) -> Self {
-        let cells = CellSums::new(raw, width, height, NOISE_CELL, f64_sum);
+    /// The scatter of the pixels of `frame`, whose read noise is `noise` (gray levels) and
+    /// which black clips: per cell, that of a clipped normal distribution at the cell's mean
+    /// level. Below black the values are a few rare pixels, far from any normal
+    /// distribution: the scatter is never taken below that at black itself.
+    pub(crate) fn clipped(frame: &optalign_optics::Frame, noise: f64) -> Self {
+        let (width, height) = (frame.width() as usize, frame.height() as usize);
+        let cells = CellSums::new(frame.pixels(), width, height, NOISE_CELL, f64_sum);
         let (columns, rows) = (cells.columns, cells.rows);
         let floor = noise * clipped_normal_spread(0.0);
         let spread = (0..columns * rows)
@@ -88,7 +82,7 @@ impl NoiseMap {
                     .fold((0.0, 0.0), |(s, n), i| {
                         (s + cells.sums[i], n + cells.counts[i])
                     });
-                let mean = sum * level_per_count / count.max(1.0) / noise;
+                let mean = sum * f64::from(frame.levels_per_count()) / count.max(1.0) / noise;
                 (noise * clipped_normal_spread(level_of_clipped_mean(mean))).max(floor) as f32
             })
             .collect();

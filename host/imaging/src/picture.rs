@@ -60,7 +60,7 @@ impl Picture {
             .map(|&p| Some(p) == saturation && p > 0)
             .collect();
         let noise_map = if plane.clipped {
-            NoiseMap::clipped(raw, width, height, noise, depth.level_per_count)
+            NoiseMap::clipped(frame, noise)
         } else {
             NoiseMap::uniform(width, height, noise)
         };
@@ -136,28 +136,21 @@ impl Picture {
         }
     }
 
-    /// The same measurement on another light image of this size (a frame difference):
-    /// nothing saturated, noise `noise`, scattering as `noise_map` says.
-    pub(crate) fn from_light(
-        width: usize,
-        height: usize,
-        light: Vec<f32>,
-        noise: f64,
-        noise_map: NoiseMap,
-    ) -> Self {
+    /// The same measurement on another light image of this picture's size (a frame
+    /// difference): nothing saturated, noise `noise`, scattering as `noise_map` says.
+    pub(crate) fn with_difference(&self, light: Vec<f32>, noise: f64, noise_map: NoiseMap) -> Self {
         Self {
-            width,
-            height,
             saturated: vec![false; light.len()],
             light,
             noise,
             noise_map,
             plane: Plane {
-                surface: Surface::new(width, height, 0),
+                surface: Surface::new(self.width, self.height, 0),
                 noise,
                 clipped: false,
                 misfit: 0.0,
             },
+            ..*self
         }
     }
 }
@@ -547,7 +540,7 @@ fn robust_surface(
     rounds: usize,
 ) -> (Surface, Vec<bool>) {
     for _ in 0..rounds {
-        surface = least_squares_surface(cells, &keep, surface).unwrap_or(surface);
+        fit_least_squares(&mut surface, cells, &keep);
         let residuals: Vec<f64> = cells
             .iter()
             .map(|c| {
@@ -567,8 +560,9 @@ fn robust_surface(
     (surface, keep)
 }
 
-/// Least squares of the cells' levels over `surface`'s terms, from the kept cells.
-fn least_squares_surface(cells: &[Cell], keep: &[bool], surface: Surface) -> Option<Surface> {
+/// Fits `surface`'s terms to the kept cells' levels by least squares; leaves it as it was
+/// when they do not determine them.
+fn fit_least_squares(surface: &mut Surface, cells: &[Cell], keep: &[bool]) {
     let n = surface.terms;
     let mut normal = nalgebra::DMatrix::<f64>::zeros(n, n);
     let mut rhs = nalgebra::DVector::<f64>::zeros(n);
@@ -578,13 +572,9 @@ fn least_squares_surface(cells: &[Cell], keep: &[bool], surface: Surface) -> Opt
         normal += &row * row.transpose();
         rhs += &row * cell.level.unwrap_or(0.0);
     }
-    let solution = normal.cholesky()?.solve(&rhs);
-    let mut coefficients = [0.0; 6];
-    coefficients[..n].copy_from_slice(solution.as_slice());
-    Some(Surface {
-        coefficients,
-        ..surface
-    })
+    if let Some(cholesky) = normal.cholesky() {
+        surface.coefficients[..n].copy_from_slice(cholesky.solve(&rhs).as_slice());
+    }
 }
 
 /// Removes a constant offset from each column whose top and bottom bands, and two bands

@@ -263,10 +263,16 @@ fn core(points: &[Point], noise: f64, min_keep: usize) -> Option<Response> {
 /// foreign beam) widens the test: first from the median of the innovations, then from the
 /// residuals of the sightings kept.
 pub fn robust_fit(points: &[Point], noise: f64, min_keep: usize) -> Option<Fit> {
+    let fit = |response, kept, widening| Fit {
+        response,
+        kept,
+        widening,
+        noise,
+    };
     let full = model_of(points, noise);
     let Some(core) = core(points, noise, min_keep) else {
         let widening = residual_widening(&full, points, noise);
-        return Some(Fit::new(full, points.to_vec(), widening));
+        return Some(fit(full, points.to_vec(), widening));
     };
     let r = isotropic(noise);
     let surprises: Vec<f64> = points
@@ -286,17 +292,17 @@ pub fn robust_fit(points: &[Point], noise: f64, min_keep: usize) -> Option<Fit> 
         let kept = kept_at(widening);
         if kept.len() < min_keep {
             let widening = widening.max(residual_widening(&full, points, noise));
-            return Some(Fit::new(full, points.to_vec(), widening));
+            return Some(fit(full, points.to_vec(), widening));
         }
         let response = model_of(&kept, noise);
         let refreshed = residual_widening(&response, &kept, noise);
         if refreshed <= widening * WIDENING_SETTLED {
-            return Some(Fit::new(response, kept, widening.max(refreshed)));
+            return Some(fit(response, kept, widening.max(refreshed)));
         }
         widening = refreshed;
     }
     let kept = kept_at(widening);
-    Some(Fit::new(model_of(&kept, noise), kept, widening))
+    Some(fit(model_of(&kept, noise), kept, widening))
 }
 
 /// How many times the variance `noise`² the sightings `points` scatter by about `model`
@@ -327,55 +333,41 @@ pub struct Fit {
     pub kept: Vec<Point>,
     /// How many times the detector's variance the sightings scatter by (at least 1).
     widening: f64,
+    /// The scatter of one sighting it was fitted with, px (the detector's).
+    noise: f64,
 }
 
 impl Fit {
-    fn new(response: Response, kept: Vec<Point>, widening: f64) -> Self {
-        Self {
-            response,
-            kept,
-            widening,
-        }
-    }
-
-    /// Whether a new sighting passes the chi-square test with a scatter of `noise` px,
-    /// widened as the kept sightings showed.
-    pub fn believes(&self, point: Point, noise: f64) -> bool {
-        let r = isotropic(noise) * self.widening;
+    /// Whether a new sighting passes the chi-square test with the scatter the fit was made
+    /// with, widened as the kept sightings showed.
+    pub fn believes(&self, point: Point) -> bool {
+        let r = isotropic(self.noise) * self.widening;
         self.response.believes(point, r)
     }
 
     /// The covariance (px²) of where the feature really lands for `command` (reached with
-    /// the axes last moving in `dir`), the model fitted with a scatter of `noise` px per
-    /// sighting: what the model does not know, scaled by the scatter the sightings showed,
-    /// and that scatter's share beyond `noise` (the bench's own: a screw's pitch error,
-    /// hysteresis, which a new command meets afresh and no number of sightings averages
-    /// away).
-    fn error_at(&self, command: Vec2, dir: Vec2, noise: f64) -> Option<Matrix2<f64>> {
+    /// the axes last moving in `dir`): what the model does not know, scaled by the scatter
+    /// the sightings showed, and that scatter's share beyond the fit's `noise` (the bench's
+    /// own: a screw's pitch error, hysteresis, which a new command meets afresh and no
+    /// number of sightings averages away).
+    fn error_at(&self, command: Vec2, dir: Vec2) -> Option<Matrix2<f64>> {
         let (_, cov) = self.response.predict(command, dir)?;
-        let bench = (self.widening - 1.0) * noise * noise;
+        let bench = (self.widening - 1.0) * self.noise * self.noise;
         Some(cov * self.widening + Matrix2::identity() * bench)
     }
 
     /// Whether the feature lands within `tolerance` px of the model's prediction for
     /// `command` (reached with the axes last moving in `dir`) with probability `confidence`
-    /// ([`Self::error_at`]; while the sightings scatter beyond `noise`, that scatter is an
-    /// estimate from the residuals' degrees of freedom, and the test allows for how little a
-    /// few of them pin it).
-    pub fn sure_at(
-        &self,
-        command: Vec2,
-        dir: Vec2,
-        noise: f64,
-        tolerance: f64,
-        confidence: f64,
-    ) -> bool {
+    /// ([`Self::error_at`]; while the sightings scatter beyond the fit's `noise`, that
+    /// scatter is an estimate from the residuals' degrees of freedom, and the test allows for
+    /// how little a few of them pin it).
+    pub fn sure_at(&self, command: Vec2, dir: Vec2, tolerance: f64, confidence: f64) -> bool {
         let freedom = if self.widening > 1.0 {
             residual_freedom(&self.kept)
         } else {
             0
         };
-        self.error_at(command, dir, noise)
+        self.error_at(command, dir)
             .is_some_and(|cov| sure_within(cov, tolerance, confidence, freedom))
     }
 }
@@ -506,7 +498,7 @@ mod tests {
                 .collect()
         };
         let sd = |fit: &Fit| {
-            let cov = fit.error_at([300.0, 300.0], STILL, 0.5).unwrap();
+            let cov = fit.error_at([300.0, 300.0], STILL).unwrap();
             cov.symmetric_eigenvalues().max().sqrt()
         };
         // Sightings as exact as the detector says: the error is what the fit does not know,

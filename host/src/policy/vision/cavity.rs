@@ -21,8 +21,9 @@ use crate::imaging::{core_centre, core_radius, nearest, registered_changes_sized
 use crate::task::{Action, CavityLimits};
 
 /// What the last action was for (a probe before the first: every decision sends one).
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
 enum Step {
+    #[default]
     Probe,
     /// A point near the target; the prediction made for it.
     Check(Option<Vec2>),
@@ -32,6 +33,7 @@ enum Step {
 }
 
 /// The cavity state machine.
+#[derive(Default)]
 pub struct CavityAgent {
     tracker: Tracker,
     command: Vec2,
@@ -52,14 +54,7 @@ impl CavityAgent {
         let range = limits.ranges.map(|r| [f64::from(r.min), f64::from(r.max)]);
         Self {
             tracker: Tracker::new(range.map(|r| CAUTIOUS_SHARE * (r[1] - r[0])), range),
-            command: [0.0; 2],
-            before: [0.0; 2],
-            previous: None,
-            primary: None,
-            scales: Scales::default(),
-            last: Step::Probe,
-            last_check_seen: false,
-            checks: 0,
+            ..Self::default()
         }
     }
 

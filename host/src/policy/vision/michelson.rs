@@ -61,7 +61,8 @@ enum Step {
 /// The Michelson state machine.
 pub struct MichelsonAgent {
     trackers: [Tracker; 2],
-    command: [f64; 4],
+    /// Each mirror's command, steps per axis.
+    command: [Vec2; 2],
     previous: Option<View>,
     /// Both mirrors' commands before the last action.
     before: [Vec2; 2],
@@ -91,7 +92,7 @@ impl MichelsonAgent {
                 tracker.min_spread = MIN_SPREAD_SHARE * probe[0].min(probe[1]);
                 tracker
             }),
-            command: [0.0; 4],
+            command: [[0.0; 2]; 2],
             previous: None,
             before: [[0.0; 2]; 2],
             last: Step::Start,
@@ -104,10 +105,6 @@ impl MichelsonAgent {
         }
     }
 
-    fn mirror(&self, k: usize) -> Vec2 {
-        [self.command[2 * k], self.command[2 * k + 1]]
-    }
-
     /// The next action for a new frame; `rejected` means nothing moved.
     pub fn decide(&mut self, frame: &Frame, rejected: bool, remaining: usize) -> Action {
         let view = View::new(frame);
@@ -117,6 +114,7 @@ impl MichelsonAgent {
             tracker.noise = noise;
         }
         let confirmed = !rejected && self.observe(&view);
+        self.before = self.command;
         let (centre, size) = (view.centre(), view.size());
         self.previous = Some(view);
         if matches!(self.last, Step::Final) {
@@ -168,7 +166,7 @@ impl MichelsonAgent {
             (_, Step::Search { .. }) => "search both mirrors".to_string(),
             (_, Step::Attribute { k, .. }) => format!("tell whether the beam seen is {}", k + 1),
         };
-        let mirrors = [0, 1].map(|k| self.trackers[k].claims(self.mirror(k)));
+        let mirrors = [0, 1].map(|k| self.trackers[k].claims(self.command[k]));
         serde_json::json!({
             "phase": phase,
             "mirrors": mirrors,
@@ -208,7 +206,7 @@ impl MichelsonAgent {
         let j = 1 - k;
         let pairs = self.scales.learn_steady(before, after);
         self.stayed = pairs.iter().map(|&(_, i)| after.beams[i].centre).collect();
-        let (old, new) = (self.before[k], self.mirror(k));
+        let (old, new) = (self.before[k], self.command[k]);
         let expected = self.trackers[k].predict(new);
         let moved = motion(before, after, self.scales.steady(), expected, parked);
         let untried = !self.trackers[k].tried_within(old, SAME_STEP);
@@ -223,7 +221,7 @@ impl MichelsonAgent {
                 other => other,
             })
         };
-        let seen_to = judge(moved.to, after, parked.map(|p| p.1), self.mirror(j));
+        let seen_to = judge(moved.to, after, parked.map(|p| p.1), self.command[j]);
         let seen_from = judge(moved.from, before, parked.map(|p| p.0), self.before[j]);
         self.adapt_probe(k, [seen_from, seen_to], distance(old, new), after);
         self.trackers[k].file(new, seen_to);
@@ -236,8 +234,7 @@ impl MichelsonAgent {
         }
         // The parked beam, found near where its map sent it.
         if let Some(c) = parked.and_then(|(_, to)| self.find_near(after, j, to)) {
-            let u = self.mirror(j);
-            self.trackers[j].add_clean(u, c);
+            self.trackers[j].add_clean(self.command[j], c);
         }
         self.trackers[k].estimate_band();
         matches!(seen_to, Some(Sighting::Clean(_) | Sighting::Fitted(_)))
@@ -379,7 +376,7 @@ impl MichelsonAgent {
             return Some((landing, latest.image));
         }
         if !self.refuted[j]
-            && let Some(p) = self.trackers[j].predict(self.mirror(j))
+            && let Some(p) = self.trackers[j].predict(self.command[j])
         {
             return Some((p, latest.image));
         }
@@ -418,14 +415,13 @@ impl MichelsonAgent {
         }
         // Each beam where its map put it, by the chi-square test of the innovation.
         let believed =
-            (0..2).all(|k| found[k].is_some_and(|c| self.trackers[k].believes(self.mirror(k), c)));
+            (0..2).all(|k| found[k].is_some_and(|c| self.trackers[k].believes(self.command[k], c)));
         let before_refit = self.trackers.clone();
         let mut relearned = false;
         for (k, seen) in found.iter().enumerate() {
             self.refuted[k] |= seen.is_none();
             if let Some(c) = seen {
-                let u = self.mirror(k);
-                self.trackers[k].add_clean(u, *c);
+                self.trackers[k].add_clean(self.command[k], *c);
                 relearned |= self.trackers[k].estimate_band();
             }
         }
@@ -444,7 +440,7 @@ impl MichelsonAgent {
         (0..2).all(|k| {
             let tracker = &self.trackers[k];
             tracker
-                .command_for(centre, self.mirror(k))
+                .command_for(centre, self.command[k])
                 .is_some_and(|u| {
                     tracker.sure_at(u, self.tolerance / 2.0, each) && before[k].believes(u, centre)
                 })
@@ -482,7 +478,6 @@ impl MichelsonAgent {
     /// Moves mirror `k` to `u`; the other beam, when its map is known and it sits where the
     /// probed beam is being steered, goes aside in the same move.
     fn probe(&mut self, k: usize, u: Vec2, centre: Vec2) -> Action {
-        self.before = [self.mirror(0), self.mirror(1)];
         let parking = self.parking(k, centre);
         self.set_mirror(k, self.trackers[k].clamp(u));
         let parked = parking.map(|(v, now, landing)| {
@@ -498,7 +493,7 @@ impl MichelsonAgent {
     /// now and where it lands (the side of the image away from the probed beam).
     fn parking(&self, k: usize, centre: Vec2) -> Option<(Vec2, Vec2, Vec2)> {
         let j = 1 - k;
-        let now = self.trackers[j].predict(self.mirror(j))?;
+        let now = self.trackers[j].predict(self.command[j])?;
         let probed_x = self.trackers[k]
             .clean
             .last()
@@ -510,7 +505,7 @@ impl MichelsonAgent {
         if distance(now, centre) >= PARK_WHEN_SHARE * width {
             return None;
         }
-        let v = self.trackers[j].command_for(spot, self.mirror(j))?;
+        let v = self.trackers[j].command_for(spot, self.command[j])?;
         let landing = self.trackers[j].predict(v)?;
         (distance(landing, spot) < self.scales.radius(j)).then_some((v, now, landing))
     }
@@ -529,7 +524,6 @@ impl MichelsonAgent {
     /// Moves mirror `k` to `u` and the other mirror to the next point of its own search,
     /// at the same probe length.
     fn search(&mut self, k: usize, u: Vec2) -> Action {
-        self.before = [self.mirror(0), self.mirror(1)];
         let j = 1 - k;
         let (probe, grid) = (self.trackers[k].probe, self.trackers[k].search_grid);
         let other = &mut self.trackers[j];
@@ -550,16 +544,14 @@ impl MichelsonAgent {
         }
         self.observe_probe(before, after, k, None);
         let j = 1 - k;
-        let v = self.mirror(j);
-        self.trackers[j].add_missing(v);
+        self.trackers[j].add_missing(self.command[j]);
     }
 
     /// Moves mirror `k` alone a short way (its first, cautious probe length along its
     /// first axis, towards the middle of its range): the beam a search showed moves if it
     /// is beam `k`.
     fn attribute(&mut self, k: usize, appeared: Beam) -> Action {
-        self.before = [self.mirror(0), self.mirror(1)];
-        let now = self.mirror(k);
+        let now = self.command[k];
         let [low, high] = self.trackers[k].range[0];
         let step = CAUTIOUS_SHARE * (high - low);
         let towards_middle = if now[0] > (low + high) / 2.0 {
@@ -581,15 +573,13 @@ impl MichelsonAgent {
         let j = 1 - k;
         self.trackers[k].add_missing(self.before[k]);
         let sighting = sight(appeared, before, &self.scales, j, None);
-        let v = self.mirror(j);
-        self.trackers[j].file(v, Some(sighting));
+        self.trackers[j].file(self.command[j], Some(sighting));
     }
 
     /// Sets mirror `k`'s command, booking the move on its tracker.
     fn set_mirror(&mut self, k: usize, u: Vec2) {
-        let from = self.mirror(k);
-        self.trackers[k].moved(from, u);
-        self.command[2 * k..2 * k + 2].copy_from_slice(&u);
+        self.trackers[k].moved(self.command[k], u);
+        self.command[k] = u;
     }
 
     /// Both beams apart on either side of the centre, where each is seen whole.
@@ -612,7 +602,7 @@ impl MichelsonAgent {
         // (within), else the first solved.
         let mut candidates = (self.checks..self.checks + layouts.len()).filter_map(|i| {
             let targets = layouts[i % layouts.len()].map(|d| [centre[0] + d[0], centre[1] + d[1]]);
-            let [a, b] = [0, 1].map(|k| self.trackers[k].command_for(targets[k], self.mirror(k)));
+            let [a, b] = [0, 1].map(|k| self.trackers[k].command_for(targets[k], self.command[k]));
             let solved = [a?, b?];
             let lands = |k: usize| self.trackers[k].predict(solved[k]);
             let within =
@@ -625,7 +615,6 @@ impl MichelsonAgent {
             .or_else(|| candidates.find(|c| c.1))
             .or(first);
         self.checks += 1;
-        self.before = [self.mirror(0), self.mirror(1)];
         let Some((solved, _)) = chosen else {
             return self.finish(centre, false);
         };
@@ -641,7 +630,7 @@ impl MichelsonAgent {
     /// that stands to the end of the budget ([`Step::Final`]).
     fn finish(&mut self, centre: Vec2, sure: bool) -> Action {
         for k in 0..2 {
-            if let Some(u) = self.trackers[k].command_for(centre, self.mirror(k)) {
+            if let Some(u) = self.trackers[k].command_for(centre, self.command[k]) {
                 self.set_mirror(k, u);
             }
         }
@@ -650,8 +639,9 @@ impl MichelsonAgent {
     }
 
     fn action(&self, done: bool) -> Action {
+        let [[a, b], [c, d]] = self.command.map(|u| u.map(|v| v.round() as i32));
         Action::Michelson {
-            command: self.command.map(|c| c.round() as i32),
+            command: [a, b, c, d],
             done,
         }
     }

@@ -216,7 +216,7 @@ fn on_axes(dir: Vec2, mask: [bool; 2]) -> Vec2 {
 }
 
 /// What the agent knows about one feature driven by one two-axis actuator.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, Default)]
 pub struct Tracker {
     /// Sightings where the feature was measured cleanly (whole, not clipped or overlapped).
     pub clean: Vec<Sight>,
@@ -253,20 +253,11 @@ pub struct Tracker {
 impl Tracker {
     pub fn new(probe: Vec2, range: [Vec2; 2]) -> Self {
         Self {
-            clean: Vec::new(),
-            partial: Vec::new(),
-            missing: Vec::new(),
             probe,
             range,
             min_spread: MIN_SPREAD_PROBES * probe[0].min(probe[1]),
-            dir: [0.0; 2],
-            previous_dir: [0.0; 2],
-            current: None,
-            band: [false; 2],
             noise: 1.0,
-            made: 0,
-            lost_at: None,
-            search_grid: None,
+            ..Self::default()
         }
     }
 
@@ -360,7 +351,7 @@ impl Tracker {
     pub fn sure_at(&self, command: Vec2, tolerance: f64, confidence: f64) -> bool {
         self.response().is_some_and(|fit| {
             let dir = self.dir_towards(command);
-            fit.sure_at(command, dir, self.noise, tolerance, confidence)
+            fit.sure_at(command, dir, tolerance, confidence)
         })
     }
 
@@ -373,19 +364,14 @@ impl Tracker {
                 dir: self.dir_towards(command),
                 image,
             };
-            fit.believes(point, self.noise)
+            fit.believes(point)
         })
     }
 
-    /// The fitted model for commands reached with the axes last moving in `dir`, anchored at
-    /// the latest clean sighting the fit did not reject: one it contradicts (another beam
-    /// taken for this one) would carry its error into every prediction.
-    fn local_model(&self, dir: Vec2) -> Option<Affine> {
-        self.anchored_model(&self.response()?, dir)
-    }
-
-    /// [`Self::local_model`] from the bench model `fit`.
-    fn anchored_model(&self, fit: &bench::Fit, dir: Vec2) -> Option<Affine> {
+    /// The bench model `fit`'s map for commands reached with the axes last moving in `dir`,
+    /// anchored at the latest clean sighting the fit did not reject: one it contradicts
+    /// (another beam taken for this one) would carry its error into every prediction.
+    fn local_model(&self, fit: &bench::Fit, dir: Vec2) -> Option<Affine> {
         let model = fit.response.mean(dir)?;
         let Some(anchor) = self
             .clean
@@ -406,8 +392,8 @@ impl Tracker {
 
     /// Where the feature shows once the mount is sent from where it is now to `command`.
     pub fn predict(&self, command: Vec2) -> Option<Vec2> {
-        self.local_model(self.dir_towards(command))
-            .map(|m| m.predict(command))
+        let model = self.local_model(&self.response()?, self.dir_towards(command))?;
+        Some(model.predict(command))
     }
 
     /// The command that puts the feature at `point` when the mount is sent there from
@@ -416,7 +402,7 @@ impl Tracker {
     /// it approaches from); an axis already there stays.
     pub fn command_for(&self, point: Vec2, from: Vec2) -> Option<Vec2> {
         let fit = self.response()?;
-        let solve = |dir: Vec2| self.anchored_model(&fit, dir)?.solve(point);
+        let solve = |dir: Vec2| self.local_model(&fit, dir)?.solve(point);
         let mut dir = on_axes(self.dir, self.band);
         let mut target = solve(dir)?;
         for _ in 0..2 {
@@ -535,9 +521,11 @@ impl Tracker {
         self.missing.push(command);
     }
 
-    /// Commands closer than this count as the same probe, steps.
-    fn same_command(&self) -> f64 {
-        (SAME_COMMAND_SHARE * self.probe[0].min(self.probe[1])).max(SAME_STEP)
+    /// Whether no observation was made at the same probe as `command` (commands closer than a
+    /// share of the shorter probe, at least [`SAME_STEP`], count as the same probe).
+    fn untried(&self, command: Vec2) -> bool {
+        let same = (SAME_COMMAND_SHARE * self.probe[0].min(self.probe[1])).max(SAME_STEP);
+        !self.tried_within(command, same)
     }
 
     /// Whether any observation (clean, partial or missing) was made within `within` steps
@@ -604,7 +592,6 @@ impl Tracker {
         };
         // When all of those were tried, finer and finer grids around the start: a beam
         // whose response is larger than the probes assumed hides between coarse points.
-        let same = self.same_command();
         let finer = (0..=SEARCH_REFINEMENTS).flat_map(|level| {
             let spacing = self.probe.map(|p| p / f64::from(1 << level));
             square_rings(start, spacing, 1..=SEARCH_RINGS)
@@ -613,7 +600,7 @@ impl Tracker {
             .into_iter()
             .chain(finer)
             .map(|c| self.clamp(c))
-            .find(|c| !self.tried_within(*c, same))
+            .find(|c| self.untried(*c))
             .unwrap_or_else(|| self.clamp([start[0] + px, start[1] + py]))
     }
 
@@ -664,7 +651,7 @@ impl Tracker {
             let reach = ROUGH_REACH * self.probe[a];
             aim[a].clamp(base[a] - reach, base[a] + reach)
         }));
-        (!self.tried_within(command, self.same_command())).then_some(command)
+        self.untried(command).then_some(command)
     }
 
     /// The map fitted to the steering sightings, through the latest of them (on effective
@@ -685,7 +672,8 @@ impl Tracker {
     /// The best map there is: the fitted one, else the rough one of every sighting (`None`
     /// while neither exists).
     pub fn steering_map(&self) -> Option<Affine> {
-        self.local_model(on_axes(self.dir, self.band))
+        self.response()
+            .and_then(|fit| self.local_model(&fit, on_axes(self.dir, self.band)))
             .or_else(|| self.rough_map().map(|(rough, _)| rough))
     }
 
@@ -703,7 +691,7 @@ impl Tracker {
         let lost = self.lost_at?;
         let last = self.latest()?;
         let back = self.clamp([0, 1].map(|a| 2.0 * last.command[a] - lost[a]));
-        (!self.tried_within(back, self.same_command())).then_some(back)
+        self.untried(back).then_some(back)
     }
 
     /// The sightings a probe across is planned from: the clean ones when two of them span
@@ -757,7 +745,6 @@ impl Tracker {
         let sideways = [-response[1] / size, response[0] / size];
         let room = room(landing, sideways, view) - margin;
         let full = (room / (size * probe)).clamp(1.0 / ACROSS_SHORTENING, 1.0);
-        let same = self.same_command();
         let short = full / ACROSS_SHORTENING;
         [full, -full, short, -short]
             .into_iter()
@@ -767,7 +754,7 @@ impl Tracker {
             })
             .find(|c| {
                 let spread = (c[0] - base[0]) * across[0] + (c[1] - base[1]) * across[1];
-                spread.abs() >= self.min_spread && !self.tried_within(*c, same)
+                spread.abs() >= self.min_spread && self.untried(*c)
             })
     }
 }

@@ -134,16 +134,15 @@ pub fn motion_in(
     avoid: Option<(Vec2, Vec2)>,
 ) -> Motion {
     let pairs = stationary_pairs(&before.beams, &after.beams, steady);
+    // The indices of the features that stayed, in each view.
+    let (stayed_before, stayed_after): (Vec<usize>, Vec<usize>) = pairs.into_iter().unzip();
     // The changes that may be the moved beam on one side of the move: not residue of the
-    // features that stayed there, and not the one nearest `avoid`'s place on that side.
-    let candidates = |blobs: &[Beam],
-                      beams: &[Beam],
-                      side: fn(&(usize, usize)) -> usize,
-                      avoid: Option<Vec2>|
-     -> Vec<Beam> {
+    // features that stayed in that `view` (`stayed`), and not the one nearest `avoid`'s place
+    // on that side.
+    let candidates = |blobs: &[Beam], view: &View, stayed: &[usize], avoid: Option<Vec2>| {
         let mut real: Vec<Beam> = blobs
             .iter()
-            .filter(|b| !residue(b, pairs.iter().map(|p| &beams[side(p)]), SEE_RESIDUE_SHARE))
+            .filter(|b| !residue(b, stayed.iter().map(|&i| &view.beams[i]), SEE_RESIDUE_SHARE))
             .copied()
             .collect();
         let nearest_avoided = avoid.and_then(|p| {
@@ -154,8 +153,8 @@ pub fn motion_in(
         real.retain(|b| Some(b.centre) != nearest_avoided);
         real
     };
-    let appeared = candidates(&moved.appeared, &after.beams, |p| p.1, avoid.map(|a| a.1));
-    let vanished = candidates(&moved.vanished, &before.beams, |p| p.0, avoid.map(|a| a.0));
+    let appeared = candidates(&moved.appeared, after, &stayed_after, avoid.map(|a| a.1));
+    let vanished = candidates(&moved.vanished, before, &stayed_before, avoid.map(|a| a.0));
     let to = expected
         .map_or_else(|| strongest(&appeared), |point| nearest(&appeared, point))
         .copied();
@@ -175,13 +174,12 @@ pub fn motion_in(
         .is_none_or(|(f, t)| distance(f.centre, t.centre) > APART_RADII * f.size().max(t.size()));
     // Where a change shows in one view: the view's own detection that covers the change and
     // did not stay put between the frames, nearest first; else only the change itself.
-    let place = |blob: Beam, beams: &[Beam], side: fn(&(usize, usize)) -> usize| {
+    let place = |blob: Beam, beams: &[Beam], stayed: &[usize]| {
         let covering: Vec<Beam> = beams
             .iter()
             .enumerate()
             .filter(|&(i, b)| {
-                !pairs.iter().any(|p| side(p) == i)
-                    && distance(b.centre, blob.centre) < blob.size() + b.size()
+                !stayed.contains(&i) && distance(b.centre, blob.centre) < blob.size() + b.size()
             })
             .map(|(_, b)| *b)
             .collect();
@@ -192,8 +190,8 @@ pub fn motion_in(
             change: blob,
         }
     };
-    let mut from = from.map(|b| place(b, &before.beams, |p| p.0));
-    let mut to = to.map(|b| place(b, &after.beams, |p| p.1));
+    let mut from = from.map(|b| place(b, &before.beams, &stayed_before));
+    let mut to = to.map(|b| place(b, &after.beams, &stayed_after));
     if let (Some(f), Some(t)) = (&mut from, &mut to)
         && f.whole
         && t.whole

@@ -31,7 +31,6 @@ pub struct Spot {
 pub struct Best {
     pub tilt: Vec2,
     pub spot: Spot,
-    error: f64,
 }
 
 /// What the last command was.
@@ -179,11 +178,6 @@ impl Servo {
     /// shows), for `target` on an image whose shorter side is `side`.
     pub fn observe(&mut self, tilt: Vec2, seen: Option<Spot>, target: Vec2, side: f64) {
         self.brightest = seen.map_or(self.brightest, |s| self.brightest.max(s.signal));
-        if let Some(best) = self.best {
-            // The yardstick of cut spots may have grown since.
-            let error = self.error(&best.spot, target, side);
-            self.best = Some(Best { error, ..best });
-        }
         if let (Pending::Probe { sign, flipped, .. }, None) = (&mut self.pending, seen) {
             // Lost: the other way, then shorter.
             *sign = -*sign;
@@ -205,8 +199,10 @@ impl Servo {
                 self.probes_done(tilt, &s);
             }
         }
-        let error = seen.map(|s| self.error(&s, target, side));
-        let better = error.is_some_and(|e| self.best.is_none_or(|best| e < best.error));
+        // The best spot ranked afresh: the yardstick of cut spots may have grown since.
+        let error = |s: &Spot| self.error(s, target, side);
+        let better =
+            seen.is_some_and(|s| self.best.is_none_or(|best| error(&s) < error(&best.spot)));
         if self.pending == Pending::Step && !self.confirmed {
             // A response on trial: a whole sighting it predicted confirms it; one it did
             // not, a lost spot or a step that did no good refutes it.
@@ -229,8 +225,8 @@ impl Servo {
                 }
             }
         }
-        if let (true, Some(spot), Some(error)) = (better, seen, error) {
-            self.best = Some(Best { tilt, spot, error });
+        if let (true, Some(spot)) = (better, seen) {
+            self.best = Some(Best { tilt, spot });
             if self.pending == Pending::Step {
                 self.radius = (self.radius * SERVO_GROWTH).min(self.bounds[1]);
             }
