@@ -68,6 +68,7 @@ impl CavityAgent {
             self.scales.learn_size(PRIMARY, primary_radius);
         }
         self.tracker.noise = self.scales.model_noise();
+        let before_refit = self.tracker.clone();
         let confirmed = !rejected && self.observe(&view, primary);
         self.previous = Some(view);
         let modelled = self.tracker.model().is_some();
@@ -87,7 +88,10 @@ impl CavityAgent {
             .command_for(target, self.command)
             .unwrap_or(self.command);
         let tolerance = CAVITY_TOLERANCE_RADII * self.scales.radius(SECONDARY);
-        let sure = confirmed && self.tracker.sure_at(aim, tolerance, DONE_CONFIDENCE);
+        let sure = confirmed
+            && self
+                .tracker
+                .settled_at(&before_refit, aim, target, tolerance, DONE_CONFIDENCE);
         if sure || remaining <= 2 {
             return self.send(aim, Step::Final, sure);
         }

@@ -432,9 +432,8 @@ impl MichelsonAgent {
     /// Whether the final command (both beams to `centre`) puts the beams within the task's
     /// tolerance of it at [`DONE_CONFIDENCE`] (each within half of it at the square root of
     /// that probability, the two beams' errors being independent), and the models as they
-    /// were before the last sightings (`before`) believe it puts them there: a refit that
-    /// moves the final command by more than the earlier model's uncertainty has not
-    /// settled.
+    /// were before the last sightings (`before`) believe it puts them there
+    /// ([`Tracker::settled_at`]).
     fn sure_at_centre(&self, centre: Vec2, before: &[Tracker; 2]) -> bool {
         let each = DONE_CONFIDENCE.sqrt();
         (0..2).all(|k| {
@@ -442,7 +441,7 @@ impl MichelsonAgent {
             tracker
                 .command_for(centre, self.command[k])
                 .is_some_and(|u| {
-                    tracker.sure_at(u, self.tolerance / 2.0, each) && before[k].believes(u, centre)
+                    tracker.settled_at(&before[k], u, centre, self.tolerance / 2.0, each)
                 })
         })
     }

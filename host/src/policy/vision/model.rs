@@ -355,6 +355,22 @@ impl Tracker {
         })
     }
 
+    /// Whether `command` puts the feature on `target` for good: it lands within `tolerance`
+    /// px of it at probability `confidence` ([`Self::sure_at`]), and the model as it was
+    /// before the latest sightings (`before`) believes so too. A refit that moves the final
+    /// command by more than the earlier model's uncertainty (the latest sightings changed
+    /// which ones the fit keeps) has not settled.
+    pub fn settled_at(
+        &self,
+        before: &Tracker,
+        command: Vec2,
+        target: Vec2,
+        tolerance: f64,
+        confidence: f64,
+    ) -> bool {
+        self.sure_at(command, tolerance, confidence) && before.believes(command, target)
+    }
+
     /// Whether a sighting at `image` for `command` (the mount sent there from where it
     /// is now) passes the model's chi-square test: `true` while there is no model.
     pub fn believes(&self, command: Vec2, image: Vec2) -> bool {
@@ -955,5 +971,20 @@ pub(crate) mod tests {
         tracker.add_clean(u, seen);
         assert!(tracker.sure_at(u, 3.0, DONE_CONFIDENCE));
         assert!(!tracker.sure_at(u, 0.1, DONE_CONFIDENCE));
+        // Settled only where the model before the last sighting agrees: one that had the
+        // response a fifth stronger puts the command elsewhere.
+        assert!(tracker.settled_at(&tracker.clone(), u, seen, 3.0, DONE_CONFIDENCE));
+        let mut earlier = Tracker::new([1500.0, 1500.0], [[-8000.0, 8000.0], [-6000.0, 6000.0]]);
+        let stronger = Affine {
+            gain: truth.gain.map(|row| row.map(|g| 1.2 * g)),
+            ..truth
+        };
+        let mut at = [0.0, 0.0];
+        for next in [[1500.0, 0.0], [1500.0, 1500.0], [0.0, 1500.0]] {
+            earlier.moved(at, next);
+            at = next;
+            earlier.add_clean(next, stronger.predict(next));
+        }
+        assert!(!tracker.settled_at(&earlier, u, seen, 3.0, DONE_CONFIDENCE));
     }
 }
