@@ -226,8 +226,7 @@ impl CavityAgent {
         let vanished = moved.from.filter(|s| {
             outside(s) && like_secondary(s) && appeared.is_none_or(|a| alike(&a.change, &s.change))
         });
-        let spans = self.tracker.spans();
-        let [lo, hi] = PROBE_SHARES.map(|share| share * spans[0].min(spans[1]));
+        let [lo, hi] = PROBE_SHARES.map(|share| share * self.tracker.shorter_span());
         if let (Some(a), Some(v)) = (appeared, vanished)
             && distance(a.beam.centre, v.beam.centre)
                 <= RESOLVED_RADII * a.beam.size().max(v.beam.size())

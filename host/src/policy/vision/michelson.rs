@@ -35,9 +35,10 @@ fn search_grid(gain: [[f64; 2]; 2], size: Vec2) -> Vec2 {
 }
 
 /// What the last action was for.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
 enum Step {
     /// Nothing moved yet.
+    #[default]
     Start,
     /// Mirror `k` moved to learn its response; the other beam, when it was moved out of
     /// the way at the same time, went from `parked.0` to `parked.1` (predicted).
@@ -59,6 +60,7 @@ enum Step {
 }
 
 /// The Michelson state machine.
+#[derive(Default)]
 pub struct MichelsonAgent {
     trackers: [Tracker; 2],
     /// Each mirror's command, steps per axis.
@@ -92,16 +94,8 @@ impl MichelsonAgent {
                 tracker.min_spread = MIN_SPREAD_SHARE * probe[0].min(probe[1]);
                 tracker
             }),
-            command: [[0.0; 2]; 2],
-            previous: None,
-            before: [[0.0; 2]; 2],
-            last: Step::Start,
-            checks: 0,
             tolerance: limits.success_error_px,
-            refuted: [false; 2],
-            scales: Scales::default(),
-            appeared: None,
-            stayed: Vec::new(),
+            ..Self::default()
         }
     }
 
@@ -118,7 +112,7 @@ impl MichelsonAgent {
         let (centre, size) = (view.centre(), view.size());
         self.previous = Some(view);
         if matches!(self.last, Step::Final) {
-            return self.action(false);
+            return self.send(Step::Final, false);
         }
         if remaining <= 1 {
             return self.finish(centre, false);
@@ -248,7 +242,7 @@ impl MichelsonAgent {
         if step < SAME_STEP {
             return;
         }
-        let span = self.shorter_span(k);
+        let span = self.trackers[k].shorter_span();
         let [lo, hi] = PROBE_SHARES.map(|share| share * span);
         let probe = self.trackers[k].probe;
         let scaled = |factor: f64| probe.map(|p| (p * factor).clamp(lo, hi));
@@ -466,7 +460,7 @@ impl MichelsonAgent {
             return;
         }
         let wanted = self.useful_move(k, size);
-        let [lo, hi] = PROBE_SHARES.map(|share| share * self.shorter_span(k));
+        let [lo, hi] = PROBE_SHARES.map(|share| share * self.trackers[k].shorter_span());
         let probe = [0, 1].map(|axis| {
             let response = known.gain[0][axis].hypot(known.gain[1][axis]);
             (wanted / response.max(1e-9)).clamp(lo, hi)
@@ -483,8 +477,7 @@ impl MichelsonAgent {
             self.set_mirror(1 - k, v);
             (now, landing)
         });
-        self.last = Step::Probe { k, parked };
-        self.action(false)
+        self.send(Step::Probe { k, parked }, false)
     }
 
     /// Where the other mirror goes while mirror `k` is probed, when its map is known and
@@ -514,12 +507,6 @@ impl MichelsonAgent {
         self.trackers[k].latest().is_some()
     }
 
-    /// The shorter command span of mirror `k`'s two axes, steps.
-    fn shorter_span(&self, k: usize) -> f64 {
-        let [a, b] = self.trackers[k].spans();
-        a.min(b)
-    }
-
     /// Moves mirror `k` to `u` and the other mirror to the next point of its own search,
     /// at the same probe length.
     fn search(&mut self, k: usize, u: Vec2) -> Action {
@@ -530,8 +517,7 @@ impl MichelsonAgent {
         other.search_grid = other.search_grid.or(grid);
         self.set_mirror(k, self.trackers[k].clamp(u));
         self.set_mirror(j, self.trackers[j].next_probe([0.0, 0.0]));
-        self.last = Step::Search { k };
-        self.action(false)
+        self.send(Step::Search { k }, false)
     }
 
     /// Learns from a search: nothing seen is a miss for both mirrors; a beam that showed
@@ -559,8 +545,7 @@ impl MichelsonAgent {
             step
         };
         self.set_mirror(k, self.trackers[k].clamp([now[0] + towards_middle, now[1]]));
-        self.last = Step::Attribute { k, appeared };
-        self.action(false)
+        self.send(Step::Attribute { k, appeared }, false)
     }
 
     /// Learns from an attribution move of mirror `k`: a beam it moved is beam `k`
@@ -621,8 +606,7 @@ impl MichelsonAgent {
             self.set_mirror(k, solved[k]);
             self.trackers[k].predict(solved[k]).unwrap_or(centre)
         });
-        self.last = Step::Check { predicted };
-        self.action(false)
+        self.send(Step::Check { predicted }, false)
     }
 
     /// Both beams to the centre: done when the models are `sure` of it, else the command
@@ -633,11 +617,12 @@ impl MichelsonAgent {
                 self.set_mirror(k, u);
             }
         }
-        self.last = Step::Final;
-        self.action(sure)
+        self.send(Step::Final, sure)
     }
 
-    fn action(&self, done: bool) -> Action {
+    /// Books `step` as what the action is for and sends both mirrors' commands.
+    fn send(&mut self, step: Step, done: bool) -> Action {
+        self.last = step;
         let [[a, b], [c, d]] = self.command.map(|u| u.map(|v| v.round() as i32));
         Action::Michelson {
             command: [a, b, c, d],

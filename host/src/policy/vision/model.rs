@@ -557,6 +557,12 @@ impl Tracker {
         self.range.map(|r| r[1] - r[0])
     }
 
+    /// The shorter of the permitted range's two widths, steps.
+    pub fn shorter_span(&self) -> f64 {
+        let [a, b] = self.spans();
+        a.min(b)
+    }
+
     /// Clamps a command into the permitted range.
     pub fn clamp(&self, command: Vec2) -> Vec2 {
         [0, 1].map(|a| command[a].clamp(self.range[a][0], self.range[a][1]))
