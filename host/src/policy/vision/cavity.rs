@@ -10,12 +10,12 @@ use optalign_optics::Frame;
 
 use super::model::{Sighting, Tracker, Vec2, distance, rings};
 use super::see::{Seen, View, alike, motion_in};
-use super::sight::{Scales, sight};
+use super::sight::{Scales, default_radius, sight};
 use super::tuning::{
     APART_RADII, CAUTIOUS_SHARE, CAVITY_MATCH_RADII, CAVITY_PROBE_RADII, CAVITY_SEARCH_SHARE,
-    CAVITY_TOLERANCE_RADII, CHECK_CLEARANCE_RADII, CORE_REACH_RADII, DEFAULT_RADIUS_SHARE,
-    DONE_CONFIDENCE, HIDDEN_RADII, MIN_CHANGE_RADIUS_PX, PRIMARY, PRIMARY_CORE_SHARE, PROBE_GROWTH,
-    PROBE_SHARES, RESOLVED_RADII, SAME_STEP, SEARCH_LEVELS, SEARCH_TRIED_SHARE, SECONDARY,
+    CAVITY_TOLERANCE_RADII, CHECK_CLEARANCE_RADII, CORE_REACH_RADII, DONE_CONFIDENCE, HIDDEN_RADII,
+    MIN_CHANGE_RADIUS_PX, PRIMARY, PRIMARY_CORE_SHARE, PROBE_GROWTH, PROBE_SHARES, RESOLVED_RADII,
+    SAME_STEP, SEARCH_LEVELS, SEARCH_TRIED_SHARE, SECONDARY,
 };
 use crate::imaging::{core_centre, core_radius, nearest, registered_changes_sized, scene_shift};
 use crate::task::{Action, CavityLimits};
@@ -313,7 +313,7 @@ impl Primary {
     /// centre.
     fn measure(view: &View) -> Self {
         let Some(b) = view.beams.first() else {
-            let radius = DEFAULT_RADIUS_SHARE * view.size()[0].min(view.size()[1]);
+            let radius = default_radius(view.shorter_side());
             return Self {
                 centre: view.centre(),
                 radius,

@@ -280,7 +280,7 @@ impl MichelsonAgent {
                 // gaps the image spans.
                 let search = match self.trackers[1 - k].model() {
                     Some(other) => {
-                        let side = after.size()[0].min(after.size()[1]);
+                        let side = after.shorter_side();
                         let grid = search_grid(other.gain, after.size())
                             .map(|g| g.clamp(2.0 * lo, 2.0 * span));
                         self.trackers[k].search_grid = Some(grid);

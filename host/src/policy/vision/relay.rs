@@ -14,12 +14,12 @@ use super::bench::chi2_quantile;
 use super::model::{Affine, Tracker, Vec2, carried, column_norm, distance, square_rings};
 use super::see::{View, motion, stationary_pairs};
 use super::servo::{Servo, Spot, useful_probe};
+use super::sight::default_radius;
 use super::tuning::{
-    CAUTIOUS_SHARE, DEFAULT_RADIUS_SHARE, DONE_CONFIDENCE, DONE_SHARE, FAR_SEARCH_OVERLAP,
-    FAR_SEARCH_RINGS, MAX_FAR_STEPS, MAX_SEARCH_SHARE, MAX_THROWS, MIN_NOISE_PX,
-    MIN_REMAINING_TO_THROW, MOVED_SHARE, NEAR_CENTRED_SHARE, PASS_SHARE, RELAY_PROBE_SHARES,
-    RELAY_SEARCH_GRID_SHARE, RELAY_STEADY_RADII, SAME_STEP, SEARCH_GROWTH, STRAY_RADII,
-    THROW_RADII, WHOLE_ENOUGH_EDGE,
+    CAUTIOUS_SHARE, DONE_CONFIDENCE, DONE_SHARE, FAR_SEARCH_OVERLAP, FAR_SEARCH_RINGS,
+    MAX_FAR_STEPS, MAX_SEARCH_SHARE, MAX_THROWS, MIN_NOISE_PX, MIN_REMAINING_TO_THROW, MOVED_SHARE,
+    NEAR_CENTRED_SHARE, PASS_SHARE, RELAY_PROBE_SHARES, RELAY_SEARCH_GRID_SHARE,
+    RELAY_STEADY_RADII, SAME_STEP, SEARCH_GROWTH, STRAY_RADII, THROW_RADII, WHOLE_ENOUGH_EDGE,
 };
 use crate::imaging::{Beam, strongest};
 use crate::task::{BenchGeometry, RelayAction, RelayLimits};
@@ -209,9 +209,7 @@ impl RelayAgent {
     /// light; after a tilt at the same station, what moved is the beam (what stayed is
     /// remembered as stray); otherwise the strongest remaining feature.
     fn find_spot(&mut self, view: &View) -> Option<Beam> {
-        let radius = self
-            .radius
-            .unwrap_or(DEFAULT_RADIUS_SHARE * view.size()[0].min(view.size()[1]));
+        let radius = self.radius.unwrap_or(default_radius(view.shorter_side()));
         let candidates: Vec<Beam> = view
             .beams
             .iter()
@@ -353,7 +351,7 @@ impl RelayAgent {
         let side = self.image_side_px.or_else(|| {
             self.previous
                 .as_ref()
-                .map(|(view, _, _)| view.size()[0].min(view.size()[1]))
+                .map(|(view, _, _)| view.shorter_side())
         });
         let known = self.assumed_gain(station).map(column_norm);
         let probe = match (self.nominal_response(station).or(known), side) {

@@ -36,6 +36,12 @@ impl View {
         [self.picture.width() as f64, self.picture.height() as f64]
     }
 
+    /// The shorter image side, px.
+    pub fn shorter_side(&self) -> f64 {
+        let [w, h] = self.size();
+        w.min(h)
+    }
+
     /// The image centre, px.
     pub fn centre(&self) -> Vec2 {
         self.size().map(|s| s / 2.0)

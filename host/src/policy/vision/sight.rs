@@ -30,11 +30,16 @@ pub struct Scales {
     uncertainty: Option<f64>,
 }
 
+/// The radius assumed for a beam not yet measured, on an image whose shorter side is `side`
+/// px.
+pub fn default_radius(side: f64) -> f64 {
+    DEFAULT_RADIUS_SHARE * side
+}
+
 impl Scales {
     /// Learns the image size, the typical beam size and centre uncertainty from a view.
     pub fn learn_view(&mut self, view: &View) {
-        let [w, h] = view.size();
-        self.side = w.min(h);
+        self.side = view.shorter_side();
         if self.typical.is_none() {
             self.typical = median(view.beams.iter().map(Beam::size).collect());
         }
@@ -76,7 +81,7 @@ impl Scales {
         self.known_radius(k)
             .or_else(|| self.known_radius(1 - k))
             .or(self.typical)
-            .unwrap_or(DEFAULT_RADIUS_SHARE * self.side.max(1.0))
+            .unwrap_or(default_radius(self.side.max(1.0)))
     }
 
     /// The known radius of feature `k`, when it was seen cleanly.
