@@ -348,7 +348,7 @@ impl Tracker {
     /// Whether the feature lands within `tolerance` px of where the model predicts once the
     /// mount is sent from where it is now to `command`, with probability `confidence`: what
     /// the model does not know and the bench's own scatter ([`bench::Fit::sure_at`]).
-    pub fn sure_at(&self, command: Vec2, tolerance: f64, confidence: f64) -> bool {
+    fn sure_at(&self, command: Vec2, tolerance: f64, confidence: f64) -> bool {
         self.response().is_some_and(|fit| {
             let dir = self.dir_towards(command);
             fit.sure_at(command, dir, tolerance, confidence)
@@ -960,13 +960,19 @@ pub(crate) mod tests {
             offset: [900.0, 500.0],
             gain: [[0.17, 0.012], [-0.01, -0.16]],
         };
-        let mut tracker = Tracker::new([1500.0, 1500.0], [[-8000.0, 8000.0], [-6000.0, 6000.0]]);
-        let mut at = [0.0, 0.0];
-        for next in [[1500.0, 0.0], [1500.0, 1500.0], [0.0, 1500.0]] {
-            tracker.moved(at, next);
-            at = next;
-            tracker.add_clean(next, truth.predict(next));
-        }
+        // A tracker of three probes' exact sightings of `map`, and where the mount ends.
+        let probed = |map: &Affine| {
+            let mut tracker =
+                Tracker::new([1500.0, 1500.0], [[-8000.0, 8000.0], [-6000.0, 6000.0]]);
+            let mut at = [0.0, 0.0];
+            for next in [[1500.0, 0.0], [1500.0, 1500.0], [0.0, 1500.0]] {
+                tracker.moved(at, next);
+                at = next;
+                tracker.add_clean(next, map.predict(next));
+            }
+            (tracker, at)
+        };
+        let (mut tracker, at) = probed(&truth);
         let u = [700.0, 600.0];
         let seen = truth.predict(u);
         assert!(tracker.believes(u, [seen[0] + 2.0, seen[1]]));
@@ -980,17 +986,11 @@ pub(crate) mod tests {
         // Settled only where the model before the last sighting agrees: one that had the
         // response a fifth stronger puts the command elsewhere.
         assert!(tracker.settled_at(&tracker.clone(), u, seen, 3.0, DONE_CONFIDENCE));
-        let mut earlier = Tracker::new([1500.0, 1500.0], [[-8000.0, 8000.0], [-6000.0, 6000.0]]);
         let stronger = Affine {
             gain: truth.gain.map(|row| row.map(|g| 1.2 * g)),
             ..truth
         };
-        let mut at = [0.0, 0.0];
-        for next in [[1500.0, 0.0], [1500.0, 1500.0], [0.0, 1500.0]] {
-            earlier.moved(at, next);
-            at = next;
-            earlier.add_clean(next, stronger.predict(next));
-        }
+        let (earlier, _) = probed(&stronger);
         assert!(!tracker.settled_at(&earlier, u, seen, 3.0, DONE_CONFIDENCE));
     }
 }
