@@ -13,7 +13,7 @@ use super::model::{Sighting, Tracker, Vec2, column_norm, distance};
 use super::see::{Seen, View, motion};
 use super::sight::{Scales, sight};
 use super::tuning::{
-    BORDER_RADII, CAUTIOUS_SHARE, CHECK_APART_RADII, DONE_CONFIDENCE, GRID_VIEW_SHARE,
+    ALIKE_LIGHT, BORDER_RADII, CAUTIOUS_SHARE, CHECK_APART_RADII, DONE_CONFIDENCE, GRID_VIEW_SHARE,
     IN_VIEW_RADII, LANDS_WITHIN_PX, MICHELSON_APART_RADII, MICHELSON_MATCH_RADII,
     MICHELSON_PROBE_RADII, MICHELSON_SEARCH_SHARE, MIN_SPREAD_SHARE, PARK_SHARE, PARK_WHEN_SHARE,
     PROBE_GROWTH, PROBE_SHARES, PROBE_VIEW_SHARE, SAME_STEP, SEARCH_GRID_SHARE, TARGET_TURN,
@@ -81,6 +81,9 @@ pub struct MichelsonAgent {
     appeared: Option<Beam>,
     /// Where the features that stayed put through the last probe are, px.
     stayed: Vec<Vec2>,
+    /// The most light each beam showed when seen clean and whole: a feature much fainter
+    /// is not that beam.
+    light: [Option<f64>; 2],
 }
 
 impl MichelsonAgent {
@@ -225,6 +228,7 @@ impl MichelsonAgent {
         // Clean means not cut by the border (`sight`).
         if let (Some(Sighting::Clean(_)), Some(s)) = (seen_to, moved.to) {
             self.scales.learn_shape(k, &s.beam, after);
+            self.light[k] = Some(self.light[k].map_or(s.beam.signal, |l| l.max(s.beam.signal)));
         }
         // The parked beam, found near where its map sent it.
         if let Some(c) = parked.and_then(|(_, to)| self.find_near(after, j, to)) {
@@ -440,11 +444,13 @@ impl MichelsonAgent {
         })
     }
 
-    /// The clean centre of beam `k` nearest `point` in `view`, within the match radius.
+    /// The clean centre of beam `k` nearest `point` in `view`, within the match radius, of a
+    /// detection with at least [`ALIKE_LIGHT`]'s lower share of the beam's light.
     fn find_near(&self, view: &View, k: usize, point: Vec2) -> Option<Vec2> {
         let radius = self.scales.radius(k);
         view.beams
             .iter()
+            .filter(|b| self.light[k].is_none_or(|light| b.signal >= ALIKE_LIGHT[0] * light))
             .filter_map(|b| sight(b, view, &self.scales, k, None).fit_centre())
             .filter(|c| distance(*c, point) < MICHELSON_MATCH_RADII * radius)
             .min_by(|a, b| distance(*a, point).total_cmp(&distance(*b, point)))
@@ -670,6 +676,47 @@ mod tests {
             }
         }
         agent
+    }
+
+    #[test]
+    fn a_check_does_not_take_faint_light_near_a_prediction_for_the_beam() {
+        use crate::imaging::synthetic::Scene;
+        let scene = || Scene::new(1920, 1080).background(8.0, [0.0, 0.0]);
+        let mut agent = agent_with(truths(), |_| 0.0);
+        // Both mirrors at the origin command: the maps put beam 1 at (700, 400), beam 2 at
+        // (1200, 700). Each beam was seen whole before, at most with the light of this one.
+        let alone = View::new(
+            &scene()
+                .gaussian([700.0, 400.0], 40.0, 150.0)
+                .noise(2.5, 1)
+                .frame(),
+        );
+        for k in 0..2 {
+            agent.scales.learn_size(k, 40.0);
+            agent.light[k] = Some(alone.beams[0].signal);
+        }
+        // Beam 1 where its map puts it; beam 2 gone, a faint broad glow beside its place.
+        let frame = scene()
+            .gaussian([700.0, 400.0], 40.0, 150.0)
+            .gaussian([1225.0, 690.0], 90.0, 5.0)
+            .noise(2.5, 2)
+            .frame();
+        let view = View::new(&frame);
+        assert_eq!(
+            view.beams.len(),
+            2,
+            "the glow is detected: {:?}",
+            view.beams
+        );
+        let beam = agent.find_near(&view, 0, [700.0, 400.0]);
+        assert!(
+            beam.is_some_and(|c| distance(c, [700.0, 400.0]) < 1.0),
+            "{beam:?}"
+        );
+        assert_eq!(agent.find_near(&view, 1, [1200.0, 700.0]), None);
+        // Without the beam's light known, the glow would pass for it.
+        agent.light[1] = None;
+        assert!(agent.find_near(&view, 1, [1200.0, 700.0]).is_some());
     }
 
     #[test]
