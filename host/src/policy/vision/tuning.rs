@@ -197,10 +197,10 @@ pub const ALIKE_SIZE: [f64; 2] = [0.5, 2.0];
 
 /// ... and their light within this one: room for a beam's flicker and texture between
 /// frames, while a stray spot or a speck of a different size and brightness is told apart.
-/// A Michelson check takes for a beam no detection fainter than the lower share of the most
+/// A beam the border cuts much more in one frame than in the other falls outside them. A
+/// Michelson check takes for a beam no detection fainter than the lower share of the most
 /// light the beam showed whole (a glow of the background, a stripe beside a fringed beam's
 /// centre).
-/// A beam the border cuts much more in one frame than in the other falls outside them.
 pub const ALIKE_LIGHT: [f64; 2] = [0.33, 3.0];
 
 /// A stationary feature may seem to move by at least this many times the two centres'
