@@ -15,9 +15,9 @@ use super::sight::{Scales, sight};
 use super::tuning::{
     ALIKE_LIGHT, BORDER_RADII, CAUTIOUS_SHARE, CHECK_APART_RADII, DONE_CONFIDENCE, GRID_VIEW_SHARE,
     IN_VIEW_RADII, LANDS_WITHIN_PX, MICHELSON_APART_RADII, MICHELSON_MATCH_RADII,
-    MICHELSON_PROBE_RADII, MICHELSON_SEARCH_SHARE, MIN_SPREAD_SHARE, PARK_SHARE, PARK_WHEN_SHARE,
-    PROBE_GROWTH, PROBE_SHARES, PROBE_VIEW_SHARE, SAME_STEP, SEARCH_GRID_SHARE, TARGET_TURN,
-    WHOLE_RADII,
+    MICHELSON_PROBE_RADII, MICHELSON_SEARCH_SHARE, MIN_NOISE_PX, MIN_SPREAD_SHARE, PARK_SHARE,
+    PARK_WHEN_SHARE, PROBE_GROWTH, PROBE_SHARES, PROBE_VIEW_SHARE, SAME_STEP, SEARCH_GRID_SHARE,
+    TARGET_TURN, WHOLE_RADII,
 };
 use crate::imaging::Beam;
 use crate::task::{Action, MichelsonLimits};
@@ -184,7 +184,13 @@ impl MichelsonAgent {
                     self.refuted[k] = false;
                 }
             }
-            Step::Check { predicted } => return self.observe_check(view, predicted),
+            Step::Check { predicted } => {
+                let repeated = self.repeated();
+                if repeated {
+                    self.scales.learn_steady(&before, view);
+                }
+                return self.observe_check(view, predicted, repeated);
+            }
             Step::Search { k } => self.observe_search(&before, view, k),
             Step::Attribute { k, appeared } => self.observe_attribute(&before, view, k, &appeared),
         }
@@ -404,7 +410,10 @@ impl MichelsonAgent {
         (MICHELSON_PROBE_RADII * self.scales.radius(k)).min(PROBE_VIEW_SHARE * size[0].min(size[1]))
     }
 
-    fn observe_check(&mut self, view: &View, predicted: [Vec2; 2]) -> bool {
+    /// Learns from a check whose maps put the beams at `predicted`; a check that `repeated`
+    /// the one before replaces its sightings. True when both beams were where their maps put
+    /// them and the final command is sure ([`Self::sure_at_centre`]).
+    fn observe_check(&mut self, view: &View, predicted: [Vec2; 2], repeated: bool) -> bool {
         let found = [0, 1].map(|k| self.find_near(view, k, predicted[k]));
         if let [Some(a), Some(b)] = found
             && a == b
@@ -419,6 +428,9 @@ impl MichelsonAgent {
         for (k, seen) in found.iter().enumerate() {
             self.refuted[k] |= seen.is_none();
             if let Some(c) = seen {
+                if repeated {
+                    self.trackers[k].forget_clean(self.before[k]);
+                }
                 self.trackers[k].add_clean(self.command[k], *c);
                 relearned |= self.trackers[k].estimate_band();
             }
@@ -441,6 +453,18 @@ impl MichelsonAgent {
                 .is_some_and(|u| {
                     tracker.settled_at(&before[k], u, centre, self.tolerance / 2.0, each)
                 })
+        })
+    }
+
+    /// Whether the last command moved neither beam by as much as the smallest scatter of a
+    /// centre ([`MIN_NOISE_PX`]), by their maps: its frame repeats the one before, and what
+    /// seems to move between the two is the bench's jitter.
+    fn repeated(&self) -> bool {
+        (0..2).all(|k| {
+            let predict = |u| self.trackers[k].predict(u);
+            let [from, to] = [self.before[k], self.command[k]].map(predict);
+            from.zip(to)
+                .is_some_and(|(a, b)| distance(a, b) < MIN_NOISE_PX)
         })
     }
 
@@ -717,6 +741,51 @@ mod tests {
         // Without the beam's light known, the glow would pass for it.
         agent.light[1] = None;
         assert!(agent.find_near(&view, 1, [1200.0, 700.0]).is_some());
+    }
+
+    #[test]
+    fn repeated_checks_measure_the_jitter_that_moved_beams_overstated() {
+        use crate::imaging::synthetic::Scene;
+        let mut agent = agent_with(truths(), |_| 0.0);
+        let at = [0, 1].map(|k| truths()[k].predict(agent.command[k]));
+        let frame = |shift: f64, seed: u64| {
+            let scene = Scene::new(1920, 1080).background(8.0, [0.0, 0.0]);
+            let moved = |p: Vec2| [p[0] + shift, p[1]];
+            let scene = scene.gaussian(moved(at[0]), 40.0, 150.0);
+            scene
+                .gaussian(moved(at[1]), 40.0, 140.0)
+                .noise(2.5, seed)
+                .frame()
+        };
+        for k in 0..2 {
+            agent.scales.learn_size(k, 40.0);
+        }
+        // Both beams moved 5 px between two frames, within what may pass for jitter before
+        // any was measured: 6 px of jitter learned where there is none.
+        agent
+            .scales
+            .learn_steady(&View::new(&frame(0.0, 1)), &View::new(&frame(5.0, 2)));
+        assert!(agent.scales.model_noise() > 3.0, "{:?}", agent.scales);
+        let check = |agent: &mut MichelsonAgent, seed: u64| {
+            agent.previous = Some(View::new(&frame(0.0, seed)));
+            agent.last = Step::Check { predicted: at };
+            agent.observe(&View::new(&frame(0.0, seed + 1)));
+        };
+        // A check after a command the maps say moves beam 1 by 1.7 px: not a repeat.
+        agent.before = agent.command;
+        agent.before[0][0] += 10.0;
+        check(&mut agent, 3);
+        assert!(agent.scales.model_noise() > 3.0, "{:?}", agent.scales);
+        // Checks at commands 2 steps apart (0.34 px): the beams stay within the frames' own
+        // noise. Each replaces the one before, so that one place does not outweigh the probes.
+        let (origin, sightings) = (agent.command, agent.trackers[0].clean.len());
+        for (seed, shift) in [(5, 0.0), (7, 2.0), (9, 0.0)] {
+            agent.before = agent.command;
+            agent.command[0][0] = origin[0][0] + shift;
+            check(&mut agent, seed);
+        }
+        assert!(agent.scales.model_noise() < 1.0, "{:?}", agent.scales);
+        assert_eq!(agent.trackers[0].clean.len(), sightings);
     }
 
     #[test]

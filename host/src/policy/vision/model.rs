@@ -498,6 +498,13 @@ impl Tracker {
         self.file_with(command, Sighting::Clean(image), self.dir);
     }
 
+    /// Forgets the clean sightings at `command`: the next frame repeats the one they were
+    /// made in, and one place must not count as many sightings.
+    pub fn forget_clean(&mut self, command: Vec2) {
+        self.clean
+            .retain(|s| distance(s.command, command) >= SAME_STEP);
+    }
+
     /// Files what was seen at the current `command` (or that nothing was).
     pub fn file(&mut self, command: Vec2, seen: Option<Sighting>) {
         match seen {

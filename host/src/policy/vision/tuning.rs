@@ -32,7 +32,8 @@ pub const PRIOR_GAIN_PX_PER_STEP: f64 = 10.0;
 pub const PRIOR_BAND_PX: f64 = 150.0;
 
 /// The smallest scatter of one measured centre, px: a centroid on a real camera is rarely
-/// better (pixel response non-uniformity, quantisation).
+/// better (pixel response non-uniformity, quantisation). A command the maps say moves
+/// neither beam by this much repeats the frame before, for the jitter.
 pub const MIN_NOISE_PX: f64 = 0.5;
 
 /// The cavity is aligned when the secondary's centre lies within this share of its own
