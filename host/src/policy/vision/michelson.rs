@@ -664,6 +664,7 @@ impl MichelsonAgent {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::imaging::synthetic::Scene;
     use crate::policy::vision::model::Affine;
 
     fn truths() -> [Affine; 2] {
@@ -677,6 +678,11 @@ mod tests {
                 gain: [[-0.165, -0.015], [0.012, 0.155]],
             },
         ]
+    }
+
+    /// A dark 1920 x 1080 frame to draw beams on, the camera's background at 8 gray levels.
+    fn scene() -> Scene {
+        Scene::new(1920, 1080).background(8.0, [0.0, 0.0])
     }
 
     /// An agent that saw each beam at six commands, where `truths` put it, off by
@@ -704,8 +710,6 @@ mod tests {
 
     #[test]
     fn a_check_does_not_take_faint_light_near_a_prediction_for_the_beam() {
-        use crate::imaging::synthetic::Scene;
-        let scene = || Scene::new(1920, 1080).background(8.0, [0.0, 0.0]);
         let mut agent = agent_with(truths(), |_| 0.0);
         // Both mirrors at the origin command: the maps put beam 1 at (700, 400), beam 2 at
         // (1200, 700). Each beam was seen whole before, at most with the light of this one.
@@ -745,13 +749,11 @@ mod tests {
 
     #[test]
     fn repeated_checks_measure_the_jitter_that_moved_beams_overstated() {
-        use crate::imaging::synthetic::Scene;
         let mut agent = agent_with(truths(), |_| 0.0);
         let at = [0, 1].map(|k| truths()[k].predict(agent.command[k]));
         let frame = |shift: f64, seed: u64| {
-            let scene = Scene::new(1920, 1080).background(8.0, [0.0, 0.0]);
             let moved = |p: Vec2| [p[0] + shift, p[1]];
-            let scene = scene.gaussian(moved(at[0]), 40.0, 150.0);
+            let scene = scene().gaussian(moved(at[0]), 40.0, 150.0);
             scene
                 .gaussian(moved(at[1]), 40.0, 140.0)
                 .noise(2.5, seed)
