@@ -1,11 +1,5 @@
-//! The light that stays put at each camera place (stray spots, ghosts), for an agent whose
-//! beam shares the image with it: where a place shows other strong features beside the
-//! beam, the agent throws the beam clear of where it is for one frame and back, and the
-//! two frames give the place's [`Backdrop`], taken off every later frame there. A backdrop
-//! that leaves a hole (the light it holds moved: the camera sits differently) is forgotten.
-//! Light fixed to the camera (a ghost of its window, a lit speck on the sensor) shows the
-//! same at every place: a place without a backdrop borrows another place's when taking it
-//! off the frame there leaves no hole.
+//! The light that stays put at each camera place (stray spots, ghosts): the agent throws the beam
+//! clear and back, and the two frames give the place's [`Backdrop`], taken off later frames there.
 
 use optalign_optics::Frame;
 
@@ -65,8 +59,7 @@ impl Backdrops {
         }
     }
 
-    /// `frame` at `place`, made ready, without the place's backdrop when it has one (one
-    /// that leaves a hole is forgotten).
+    /// `frame` at `place` made ready, its backdrop taken off (one that leaves a hole is forgotten).
     pub fn picture(&mut self, place: usize, frame: &Frame) -> Picture {
         let picture = Picture::new(frame);
         let slot = &mut self.places[place];
@@ -79,10 +72,8 @@ impl Backdrops {
         })
     }
 
-    /// Gives `place`, once per visit, a copy of another place's backdrop (the latest learned
-    /// first) that holds light beside the beam (its strongest feature has a share of the
-    /// frame's strongest one's light) and leaves no hole in `frame`: all its light shows
-    /// there. Returns `frame` without it, when one was borrowed.
+    /// Gives `place`, once per visit, the latest other backdrop with light beside the beam that
+    /// leaves no hole in `frame` (light fixed to the camera shows alike everywhere).
     fn borrow(&mut self, place: usize, frame: &Frame, picture: &Picture) -> Option<Picture> {
         if std::mem::replace(&mut self.places[place].borrow_tried, true)
             || self.places.iter().all(|p| p.backdrop.is_none())
@@ -101,21 +92,18 @@ impl Backdrops {
         Some(clean)
     }
 
-    /// The places with a backdrop.
     pub fn learned(&self) -> impl Iterator<Item = usize> + '_ {
         (0..self.places.len()).filter(move |&i| self.places[i].backdrop.is_some())
     }
 
-    /// The camera arrived at `place`: a throw may be tried there again when it has no
-    /// backdrop (the last one may have found the beam merged with other light).
+    /// The camera arrived at `place`: throwing and borrowing may be tried there again.
     pub fn arrived(&mut self, place: usize) {
         let p = &mut self.places[place];
         p.tried = false;
         p.borrow_tried = false;
     }
 
-    /// A throw is worth making at `place`: it has no backdrop and none was tried since,
-    /// and `beams` hold another strong feature beside the beam's `spot`.
+    /// Whether to throw at `place`: no backdrop or throw yet, and a strong feature beside `spot`.
     pub fn wanted(&self, place: usize, beams: &[Beam], spot: &Beam) -> bool {
         let p = &self.places[place];
         p.backdrop.is_none()
@@ -125,8 +113,7 @@ impl Backdrops {
             })
     }
 
-    /// Starts a throw of `step` (moving the spot `reach` px) at `place` from the frame
-    /// `before` (showing `spot`), the mount at `tilt`.
+    /// Starts a throw of `step` (moving the spot `reach` px) from `before`, which shows `spot`.
     pub fn throw(
         &mut self,
         place: usize,
@@ -147,20 +134,13 @@ impl Backdrops {
         }
     }
 
-    /// Learns the throw's place's backdrop from the picture after it. In the frames'
-    /// difference the stationary light cancels: the beam's old place shows as light gone,
-    /// its new one (with any faint halo around it) as light come. Nothing gone but light
-    /// come: the beam came into view, and the picture before is the backdrop. Gone, and all
-    /// that came clear of it: the darker of the two pictures place by place, when taking it
-    /// off the picture before leaves the beam there. Neither: the beam was in neither
-    /// picture (or stayed put; a backdrop holding it leaves a hole once it moves).
+    /// Learns the place's backdrop from the frame `after` the throw: the frame before if the beam
+    /// only came into view; once clear, both frames' darker cells, if removing them keeps the beam.
     pub fn learn(&mut self, throw: &Throw, after: &Frame) -> Thrown {
         let before = Picture::new(&throw.before);
         let after_picture = Picture::new(after);
         let moved = changes(&before, &after_picture);
-        // A change counts with a share of the strongest feature's light, unless it lies
-        // inside a feature of the picture before with little of its light (that feature's
-        // light changing: flicker).
+        // Changes that count: a share of the strongest light, not flicker of a feature before.
         let features = find_beams(&before);
         let reference = features.first().map_or(throw.spot.signal, |f| f.signal);
         let notable = |blobs: &[Beam]| -> Vec<Beam> {
@@ -219,10 +199,9 @@ impl Backdrops {
     }
 }
 
-/// `frame` (made ready as `picture`) without `backdrop`, whose strongest feature is
-/// `strongest`; `None` when the sizes differ or it leaves a hole: where the backdrop holds
-/// more light than the frame (the frame's own light left out: beside a hole it would pull
-/// the hole's measuring window negative) by a share of that feature's light.
+/// `frame` (made ready as `picture`) without `backdrop`; `None` when the sizes differ or it leaves
+/// a hole: more light than the frame by a share of `strongest`'s (the frame's own light is zeroed,
+/// lest it pull the hole's measuring window negative).
 fn taken_off(
     (backdrop, strongest): &(Backdrop, Beam),
     frame: &Frame,

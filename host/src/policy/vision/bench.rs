@@ -1,14 +1,6 @@
-//! The agent's one model of the bench: for a two-axis mount, where its feature lands,
-//! `image = offset + gain · command + Σ band[axis] · dir[axis]`, as a linear-Gaussian
-//! belief over the ten numbers (offset 2, gain 2 x 2, and for each axis the shift a dead
-//! band between motor and load puts on the feature after a move one way rather than the
-//! other, 2 each) with their covariance. An axis whose band the data do not show is given
-//! no direction (`dir` 0), and its band stays at the prior's zero. Each sighting adds its
-//! information (recursive least squares in information form); the measurement noise is the
-//! centre's scatter. From the belief follow every decision the agents make of it: whether a
-//! sighting is believed (a chi-square test of its innovation), where a command puts the
-//! feature and how surely, and whether the final command is within a tolerance at a
-//! stated confidence.
+//! The agent's model of a two-axis mount, `image = offset + gain · command + Σ band[a] · dir[a]`
+//! (`band`: the shift a dead band puts on the feature after a move one way; `dir` 0 where none is
+//! modelled), as a linear-Gaussian belief over the ten numbers, with chi-square tests on it.
 
 use nalgebra::{Matrix2, SMatrix, SVector, Vector2};
 
@@ -19,18 +11,13 @@ use super::tuning::{
 };
 use crate::imaging::median;
 
-/// The chi-square quantile of two degrees of freedom at probability `p`: that distribution
-/// is exponential with mean 2, so `P(d² <= q) = 1 - exp(-q / 2)`.
+/// The chi-square quantile of two degrees of freedom at probability `p` (exponential, mean 2).
 pub fn chi2_quantile(p: f64) -> f64 {
     -2.0 * (1.0 - p).ln()
 }
 
-/// The squared Mahalanobis radius a 2-D error falls within at probability `p`, when its
-/// covariance is known up to a scale estimated from residuals with `freedom` degrees of
-/// freedom (0: known outright). The error over its estimated scale is then Student
-/// distributed, d²/2 follows Fisher's F(2, ν), whose distribution function
-/// 1 - (1 + 2x/ν)^(-ν/2) inverts in closed form; as ν grows this is the chi-square
-/// quantile.
+/// The squared Mahalanobis radius a 2-D error falls within at probability `p`, its scale estimated
+/// with `freedom` degrees of freedom (0: known): twice the F(2, ν) quantile, chi-square as ν grows.
 pub fn quantile(p: f64, freedom: usize) -> f64 {
     if freedom == 0 {
         return chi2_quantile(p);
@@ -39,9 +26,7 @@ pub fn quantile(p: f64, freedom: usize) -> f64 {
     v * ((1.0 - p).powf(-2.0 / v) - 1.0)
 }
 
-/// Whether a zero-mean 2-D error of covariance `cov` (px²), its scale estimated with
-/// `freedom` degrees of freedom ([`quantile`]), lies within `tolerance` px with at least
-/// probability `confidence` (bounded by its larger axis).
+/// Whether a zero-mean error of covariance `cov` (px²) lies within `tolerance` px at `confidence`.
 fn sure_within(cov: Matrix2<f64>, tolerance: f64, confidence: f64, freedom: usize) -> bool {
     let largest = cov.symmetric_eigenvalues().max();
     largest * quantile(confidence, freedom) <= tolerance * tolerance
@@ -52,7 +37,6 @@ pub fn isotropic(px: f64) -> Matrix2<f64> {
     Matrix2::identity() * px * px
 }
 
-/// How many numbers the model holds.
 const PARAMETERS: usize = 10;
 
 /// Two px-per-axis columns (rows: image x and y; columns: the two axes).
@@ -64,8 +48,7 @@ pub const STILL: Vec2 = [0.0; 2];
 type Vector = SVector<f64, PARAMETERS>;
 type Matrix = SMatrix<f64, PARAMETERS, PARAMETERS>;
 
-/// One sighting: the command, the direction each axis last moved in (+1, -1; 0 where
-/// unknown or no band is modelled) and where the feature showed.
+/// One sighting; `dir`: each axis's last move direction (+1, -1; 0 if unknown or unmodelled).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Point {
     pub command: Vec2,
@@ -73,8 +56,7 @@ pub struct Point {
     pub image: Vec2,
 }
 
-/// The observation matrix of a command (relative to the model's origin) reached with the
-/// axes last moving in `dir`.
+/// The observation matrix of command `u` (relative to the origin) reached moving in `dir`.
 fn observation(u: Vec2, dir: Vec2) -> SMatrix<f64, 2, PARAMETERS> {
     SMatrix::<f64, 2, PARAMETERS>::from_row_slice(&[
         1.0, 0.0, u[0], u[1], 0.0, 0.0, dir[0], 0.0, dir[1], 0.0, //
@@ -82,8 +64,7 @@ fn observation(u: Vec2, dir: Vec2) -> SMatrix<f64, 2, PARAMETERS> {
     ])
 }
 
-/// The belief about one mount's response, in information form about a command `origin`
-/// (commands are taken relative to it, which keeps the numbers well conditioned).
+/// The belief about one mount's response, in information form; commands relative to `origin`.
 #[derive(Clone, Debug)]
 pub struct Response {
     origin: Vec2,
@@ -92,15 +73,13 @@ pub struct Response {
 }
 
 impl Response {
-    /// Nothing known but that the feature is somewhere near the image and the mount
-    /// moves it by less than a broad bound ([`PRIOR_OFFSET_PX`], [`PRIOR_GAIN_PX_PER_STEP`]).
+    /// Nothing known but broad bounds ([`PRIOR_OFFSET_PX`], [`PRIOR_GAIN_PX_PER_STEP`]).
     pub fn broad(origin: Vec2) -> Self {
         let nothing = Affine::linear([[0.0; 2]; 2]);
         Self::with_prior(origin, nothing, PRIOR_GAIN_PX_PER_STEP)
     }
 
-    /// A prior centred on `mean` (a nominal response, no dead band), with standard deviations
-    /// `gain_sd` px per step for the gain ([`PRIOR_OFFSET_PX`], [`PRIOR_BAND_PX`] for the rest).
+    /// A prior centred on `mean` (no dead band), the gain's standard deviation `gain_sd` px/step.
     pub fn with_prior(origin: Vec2, mean: Affine, gain_sd: f64) -> Self {
         let at = mean.predict(origin);
         let [[a, b], [c, d]] = mean.gain;
@@ -130,8 +109,7 @@ impl Response {
         self.projected += ht_w * Vector2::new(point.image[0], point.image[1]);
     }
 
-    /// The mean of the ten numbers, `None` when the information is not positive definite
-    /// (cannot happen with a prior, short of overflow).
+    /// The mean of the ten numbers; `None` only if the information is not positive definite.
     fn estimate(&self) -> Option<Vector> {
         Some(self.information.cholesky()?.solve(&self.projected))
     }
@@ -158,16 +136,13 @@ impl Response {
         })
     }
 
-    /// The most likely response (px per step) and the shift each axis's dead band puts on
-    /// the feature after a move the positive way, px (columns: the axes).
+    /// The most likely gain (px per step) and each axis's band shift after a positive move, px.
     pub fn gain_and_band(&self) -> Option<(PerAxis, PerAxis)> {
         let x = self.estimate()?;
         Some(([[x[2], x[3]], [x[4], x[5]]], [[x[6], x[8]], [x[7], x[9]]]))
     }
 
-    /// Where the feature shows for `command` reached with the axes last moving in `dir`,
-    /// and the covariance of that place (px²) from what the model does not know (the
-    /// detector's scatter not included).
+    /// Where `command`, reached moving in `dir`, puts the feature, and its model covariance (px²).
     fn predict(&self, command: Vec2, dir: Vec2) -> Option<(Vec2, Matrix2<f64>)> {
         let cholesky = self.information.cholesky()?;
         let (x, p) = (cholesky.solve(&self.projected), cholesky.inverse());
@@ -176,8 +151,7 @@ impl Response {
         Some(([mean[0], mean[1]], h * p * h.transpose()))
     }
 
-    /// The squared Mahalanobis distance of a sighting from the model's prediction, with
-    /// the sighting's own covariance `noise` added to the prediction's.
+    /// The squared Mahalanobis distance of `point` from the prediction, its own `noise` added.
     fn surprise(&self, point: Point, noise: Matrix2<f64>) -> Option<f64> {
         let (mean, cov) = self.predict(point.command, point.dir)?;
         let miss = Vector2::new(point.image[0] - mean[0], point.image[1] - mean[1]);
@@ -185,8 +159,7 @@ impl Response {
         Some((miss.transpose() * inverse * miss)[0])
     }
 
-    /// Whether the model believes a sighting: its innovation passes the chi-square test at
-    /// [`GATE_CONFIDENCE`].
+    /// Whether a sighting's innovation passes the chi-square test at [`GATE_CONFIDENCE`].
     pub fn believes(&self, point: Point, noise: Matrix2<f64>) -> bool {
         self.surprise(point, noise)
             .is_none_or(|d2| d2 <= chi2_quantile(GATE_CONFIDENCE))
@@ -219,8 +192,7 @@ pub fn squares(model: &Response, subset: &[Point]) -> f64 {
         .sum()
 }
 
-/// The model of the [`CORE_SHARE`] of `points` it fits best (at least `min_keep`), `None`
-/// when that is all of them.
+/// The model of the [`CORE_SHARE`] of `points` it fits best (at least `min_keep`); `None` if all.
 fn core(points: &[Point], noise: f64, min_keep: usize) -> Option<Response> {
     let keep = ((CORE_SHARE * points.len() as f64).ceil() as usize).max(min_keep);
     if keep >= points.len() {
@@ -255,13 +227,8 @@ fn core(points: &[Point], noise: f64, min_keep: usize) -> Option<Response> {
     Some(model)
 }
 
-/// The model of sightings `points` (command, image), each with an isotropic scatter of
-/// `noise` px, less those it does not believe: each sighting's innovation against the
-/// model of the [`CORE_SHARE`] of them it fits best is tested by chi-square, and those
-/// that fail are set aside, unless fewer than `min_keep` would remain. The scatter the
-/// sightings show beyond `noise` (a screw's pitch error, hysteresis: the bench, not a
-/// foreign beam) widens the test: first from the median of the innovations, then from the
-/// residuals of the sightings kept.
+/// The model of `points` (scatter `noise` px) less those failing a chi-square test against the
+/// [`CORE_SHARE`] they fit best (keeping `min_keep`); scatter beyond `noise` widens the test.
 pub fn robust_fit(points: &[Point], noise: f64, min_keep: usize) -> Option<Fit> {
     let fit = |response, kept, widening| Fit {
         response,
@@ -279,9 +246,8 @@ pub fn robust_fit(points: &[Point], noise: f64, min_keep: usize) -> Option<Fit> 
         .iter()
         .map(|p| core.surprise(*p, r).unwrap_or(0.0))
         .collect();
-    // The median innovation against the core starts the scatter's estimate; the core fits
-    // its own sightings closer than a new one, so the estimate is then taken again from
-    // the residuals of the sightings the test kept, until it no longer grows.
+    // The core fits its own sightings closer than a new one: the median innovation only starts
+    // the scatter's estimate, which the kept sightings' residuals refine until it stops growing.
     let mut widening = (median(surprises.clone())? / CHI2_MEDIAN).max(1.0);
     let kept_at = |widening: f64| -> Vec<Point> {
         let gate = chi2_quantile(GATE_CONFIDENCE) * widening;
@@ -305,9 +271,7 @@ pub fn robust_fit(points: &[Point], noise: f64, min_keep: usize) -> Option<Fit> 
     Some(fit(model_of(&kept, noise), kept, widening))
 }
 
-/// How many times the variance `noise`² the sightings `points` scatter by about `model`
-/// fitted to all of them (at least 1): the residual variance over the degrees of freedom the
-/// numbers fitted leave (the unbiased estimate of least squares), 1 while there are none.
+/// How many times `noise`² the `points` scatter by about `model` (residual variance, at least 1).
 fn residual_widening(model: &Response, points: &[Point], noise: f64) -> f64 {
     let freedom = residual_freedom(points);
     if freedom == 0 {
@@ -316,8 +280,7 @@ fn residual_widening(model: &Response, points: &[Point], noise: f64) -> f64 {
     (squares(model, points) / (freedom as f64 * noise * noise)).max(1.0)
 }
 
-/// The degrees of freedom `points` (two coordinates each) leave once the model's numbers
-/// are fitted to them: six, and two for each axis whose band they carry a direction for.
+/// The degrees of freedom `points` leave: two each, less six and two per banded axis.
 pub fn residual_freedom(points: &[Point]) -> usize {
     let bands = (0..2)
         .filter(|&a| points.iter().any(|p| p.dir[a] != 0.0))
@@ -329,7 +292,6 @@ pub fn residual_freedom(points: &[Point]) -> usize {
 #[derive(Clone, Debug)]
 pub struct Fit {
     pub response: Response,
-    /// The sightings it kept.
     pub kept: Vec<Point>,
     /// How many times the detector's variance the sightings scatter by (at least 1).
     widening: f64,
@@ -338,29 +300,21 @@ pub struct Fit {
 }
 
 impl Fit {
-    /// Whether a new sighting passes the chi-square test with the scatter the fit was made
-    /// with, widened as the kept sightings showed.
+    /// Whether a new sighting passes the chi-square test, widened as the kept sightings showed.
     pub fn believes(&self, point: Point) -> bool {
         let r = isotropic(self.noise) * self.widening;
         self.response.believes(point, r)
     }
 
-    /// The covariance (px²) of where the feature really lands for `command` (reached with
-    /// the axes last moving in `dir`): what the model does not know, scaled by the scatter
-    /// the sightings showed, and that scatter's share beyond the fit's `noise` (the bench's
-    /// own: a screw's pitch error, hysteresis, which a new command meets afresh and no
-    /// number of sightings averages away).
+    /// The covariance (px²) of where `command`, reached moving in `dir`, lands the feature: the
+    /// model's widened uncertainty plus the bench's own scatter, which no fit averages away.
     fn error_at(&self, command: Vec2, dir: Vec2) -> Option<Matrix2<f64>> {
         let (_, cov) = self.response.predict(command, dir)?;
         let bench = (self.widening - 1.0) * self.noise * self.noise;
         Some(cov * self.widening + Matrix2::identity() * bench)
     }
 
-    /// Whether the feature lands within `tolerance` px of the model's prediction for
-    /// `command` (reached with the axes last moving in `dir`) with probability `confidence`
-    /// ([`Self::error_at`]; while the sightings scatter beyond the fit's `noise`, that
-    /// scatter is an estimate from the residuals' degrees of freedom, and the test allows for
-    /// how little a few of them pin it).
+    /// Whether the feature lands within `tolerance` px of the prediction at `confidence`.
     pub fn sure_at(&self, command: Vec2, dir: Vec2, tolerance: f64, confidence: f64) -> bool {
         let freedom = if self.widening > 1.0 {
             residual_freedom(&self.kept)

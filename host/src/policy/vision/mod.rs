@@ -1,8 +1,6 @@
-//! The image-only vision agent ("vision"): system identification by intervention. It sees only the
-//! images, the feedback on its actions and the brief. Per actuator it makes small probes,
-//! finds the feature that moved (stationary features are artefacts), fits an affine
-//! motor-to-image map to the clean sightings, solves it for the target, checks the result
-//! with a further measurement, and declares done only when the images agree.
+//! The image-only vision agent ("vision"): from the images, its actions' feedback and the brief
+//! alone, it probes each actuator, fits an affine motor-to-image map to clean sightings of the
+//! feature that moved, solves it for the target and declares done when a further image agrees.
 
 mod backdrops;
 mod bench;

@@ -1,9 +1,5 @@
-//! The agent's model of one two-axis actuator: observations of where a feature was seen for
-//! which motor command, the bench model fitted to them (`bench`: an affine motor-to-image
-//! map, and on an axis whose sightings show one, the shift a dead band the controller does
-//! not compensate puts on the feature after a move one way rather than the other), and the
-//! choice of the next probe (an axis not yet moved, or an expanding search when the feature
-//! has not been seen).
+//! The agent's model of one two-axis actuator ([`Tracker`]): where its feature was seen for which
+//! command, the bench model fitted to that, and the choice of the next probe.
 
 use std::ops::RangeInclusive;
 
@@ -26,7 +22,6 @@ pub struct Affine {
 }
 
 impl Affine {
-    /// The response `gain` alone, no offset: where a move of the command moves the feature.
     pub fn linear(gain: [[f64; 2]; 2]) -> Self {
         Self {
             offset: [0.0; 2],
@@ -34,7 +29,6 @@ impl Affine {
         }
     }
 
-    /// Where the feature shows for `command`.
     pub fn predict(&self, command: Vec2) -> Vec2 {
         [0, 1].map(|r| self.offset[r] + self.gain[r][0] * command[0] + self.gain[r][1] * command[1])
     }
@@ -50,8 +44,7 @@ impl Affine {
         Some([(d * rx - b * ry) / det, (a * ry - c * rx) / det])
     }
 
-    /// The same response passing exactly through one observation: local corrections from
-    /// the latest sighting do not inherit the fit's offset error.
+    /// The same gain, offset to pass exactly through `image` at `command`.
     pub fn anchored(&self, command: Vec2, image: Vec2) -> Affine {
         let moved = self.predict(command);
         Affine {
@@ -60,8 +53,7 @@ impl Affine {
         }
     }
 
-    /// The ratio of the gain's smaller singular value to its larger (1: both directions
-    /// of command move the feature alike; 0: one does not move it).
+    /// The gain's smaller singular value over its larger (0: one direction does not move it).
     fn balance(&self) -> f64 {
         let [[a, b], [c, d]] = self.gain;
         let frobenius = a * a + b * b + c * c + d * d;
@@ -73,8 +65,7 @@ impl Affine {
     }
 }
 
-/// Whether commands span both axes by at least `min_spread` steps (RMS about their mean
-/// along the weaker direction): only then do sightings pin a two-axis response.
+/// Whether the commands spread by at least `min_spread` steps (RMS) along their weakest direction.
 fn spans_both_axes(points: &[Point], min_spread: f64) -> bool {
     if points.len() < 3 {
         return false;
@@ -91,9 +82,7 @@ fn spans_both_axes(points: &[Point], min_spread: f64) -> bool {
     weakest >= min_spread * min_spread
 }
 
-/// The map, for commands reached with the axes last moving in `dir`, of the bench model
-/// of sightings `points` with a scatter of `noise` px, none set aside, once their commands
-/// span both axes by `min_spread` steps.
+/// The bench model's map of `points` for direction `dir`, none set aside, once they span both axes.
 fn fit(points: &[Point], dir: Vec2, noise: f64, min_spread: f64) -> Option<Affine> {
     if !spans_both_axes(points, min_spread) {
         return None;
@@ -108,19 +97,16 @@ pub fn column_norm(gain: [[f64; 2]; 2]) -> f64 {
         .max(gain[0][1].hypot(gain[1][1]))
 }
 
-/// Where a feature seen at `at` under command `from` shows under command `to`, by the
-/// response `gain` (px per step, columns per axis).
+/// Where a feature seen at `at` under command `from` shows under `to`, by the response `gain`.
 pub fn carried(gain: [[f64; 2]; 2], from: Vec2, at: Vec2, to: Vec2) -> Vec2 {
     Affine { offset: at, gain }.predict([to[0] - from[0], to[1] - from[1]])
 }
 
-/// Euclidean distance.
 pub fn distance(a: Vec2, b: Vec2) -> f64 {
     (a[0] - b[0]).hypot(a[1] - b[1])
 }
 
-/// The commands of a square grid of `spacing` around `centre`, ring by ring outwards
-/// (ring k: the 8k grid points k steps away along the farther axis).
+/// A square grid of `spacing` around `centre`, ring by ring outwards (ring k: its 8k points).
 pub fn square_rings(centre: Vec2, spacing: Vec2, multiples: RangeInclusive<i32>) -> Vec<Vec2> {
     multiples
         .flat_map(|k| {
@@ -132,8 +118,7 @@ pub fn square_rings(centre: Vec2, spacing: Vec2, multiples: RangeInclusive<i32>)
         .collect()
 }
 
-/// Eight commands around `centre` (the axes first, then the diagonals) at each multiple
-/// `k` of `spacing`.
+/// Eight commands around `centre` (axes first, then diagonals) at each multiple of `spacing`.
 pub fn rings(centre: Vec2, spacing: Vec2, multiples: RangeInclusive<i32>) -> Vec<Vec2> {
     multiples
         .flat_map(|k| {
@@ -153,8 +138,7 @@ pub fn rings(centre: Vec2, spacing: Vec2, multiples: RangeInclusive<i32>) -> Vec
         .collect()
 }
 
-/// How far a feature at `from` can move either way along the unit `direction` and stay
-/// inside an image of size `view`.
+/// How far a feature at `from` can move either way along unit `direction` inside image `view`.
 fn room(from: Vec2, direction: Vec2, view: Vec2) -> f64 {
     (0..2)
         .filter(|&axis| direction[axis].abs() > 1e-9)
@@ -168,15 +152,13 @@ fn room(from: Vec2, direction: Vec2, view: Vec2) -> f64 {
 pub enum Sighting {
     /// Its centre can be fitted to.
     Clean(Vec2),
-    /// The centre of a spot the border cuts, extrapolated by a spot fit: good enough to fit
-    /// a map to until whole sightings span one.
+    /// The centre of a spot the border cuts, extrapolated by a spot fit.
     Fitted(Vec2),
     /// Roughly where it is (cut, merged, speckled).
     Partial(Vec2),
 }
 
 impl Sighting {
-    /// The centre a map may be fitted to (clean or fitted).
     pub fn fit_centre(self) -> Option<Vec2> {
         match self {
             Sighting::Clean(c) | Sighting::Fitted(c) => Some(c),
@@ -185,8 +167,7 @@ impl Sighting {
     }
 }
 
-/// One sighting of a feature: the command, where it showed and the direction each axis
-/// had last moved in (+1, -1; 0 before its first move).
+/// One sighting; `dir`: the direction each axis last moved in (+1, -1; 0 before its first move).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Sight {
     pub command: Vec2,
@@ -199,8 +180,7 @@ pub struct Sight {
 }
 
 impl Sight {
-    /// This sighting as the bench model takes it, with its direction on the axes `band`
-    /// marks as banded.
+    /// This sighting for the bench model, its direction kept only on the axes `band` marks.
     fn point(&self, band: [bool; 2]) -> Point {
         Point {
             command: self.command,
@@ -210,7 +190,6 @@ impl Sight {
     }
 }
 
-/// `dir` on the axes `mask` marks, 0 on the others.
 fn on_axes(dir: Vec2, mask: [bool; 2]) -> Vec2 {
     [0, 1].map(|a| if mask[a] { dir[a] } else { 0.0 })
 }
@@ -218,11 +197,10 @@ fn on_axes(dir: Vec2, mask: [bool; 2]) -> Vec2 {
 /// What the agent knows about one feature driven by one two-axis actuator.
 #[derive(Clone, Debug, Default)]
 pub struct Tracker {
-    /// Sightings where the feature was measured cleanly (whole, not clipped or overlapped).
+    /// Sightings a map may be fitted to ([`Sighting::Clean`] or [`Sighting::Fitted`]).
     pub clean: Vec<Sight>,
     /// Sightings where it showed only partly (clipped, overlapped): where it roughly was.
     pub partial: Vec<Sight>,
-    /// Commands where the feature did not show.
     pub missing: Vec<Vec2>,
     /// Probe length per axis, steps.
     pub probe: Vec2,
@@ -232,19 +210,15 @@ pub struct Tracker {
     pub min_spread: f64,
     /// The direction each axis last moved in.
     dir: Vec2,
-    /// The directions before the last move.
     previous_dir: Vec2,
     /// The command the mount was last sent to.
     current: Option<Vec2>,
-    /// The axes whose sightings showed a dead band the controller does not compensate
-    /// ([`Self::estimate_band`]): only on these does the model fit one.
+    /// The axes whose sightings showed an uncompensated dead band; only these get one in the fit.
     band: [bool; 2],
-    /// The scatter of one measured position, px (set by the agent from what it measured).
+    /// The scatter of one measured position, px.
     pub noise: f64,
-    /// Sightings made so far (clean and partial), for their order.
     made: usize,
-    /// The spacing per axis of a square search grid whose points' views tile the
-    /// command space, when the response's scale is known (from a like mount), steps.
+    /// Spacing per axis of a square search grid whose views tile the command space, steps.
     pub search_grid: Option<Vec2>,
     /// The last command where the feature did not show, while nothing was seen since.
     lost_at: Option<Vec2>,
@@ -268,8 +242,7 @@ impl Tracker {
         self.current = Some(to);
     }
 
-    /// The direction each axis moves in last when the mount is sent from `from` to
-    /// `command` (an axis that stays keeps its last direction).
+    /// The axes' directions after a move from `from` to `command` (one that stays keeps its last).
     fn heading(&self, from: Vec2, command: Vec2) -> Vec2 {
         [0, 1].map(|a| {
             let step = command[a] - from[a];
@@ -287,8 +260,7 @@ impl Tracker {
         on_axes(self.heading(from, command), self.band)
     }
 
-    /// Motion lost when an axis reverses, steps: on an axis whose sightings showed a dead
-    /// band, its width as the bench model fits it; 0 on the others.
+    /// Motion lost when an axis reverses, steps: the fitted band's width on banded axes, else 0.
     pub fn lost(&self) -> Vec2 {
         let fitted = (self.band != [false; 2])
             .then(|| self.response())
@@ -307,10 +279,7 @@ impl Tracker {
         })
     }
 
-    /// The clean sightings a map is fitted to, the axes `band` marks taken as banded: the
-    /// whole ones alone once they span both axes (a fitted centre of a cut spot is less
-    /// exact), else all; on a banded axis, only those made after it first moved (before,
-    /// where in the band the load sat is unknown).
+    /// The clean sightings to fit: whole ones if they span both axes; on `band` axes, after a move.
     fn points(&self, band: [bool; 2]) -> Vec<Point> {
         let known: Vec<&Sight> = self
             .clean
@@ -328,15 +297,12 @@ impl Tracker {
         known.iter().map(|s| s.point(band)).collect()
     }
 
-    /// The fitted model for the way the axes last moved, once the clean sightings span both
-    /// axes, less those the others contradict ([`bench::robust_fit`]): an early sighting of a
-    /// beam cut by the border must not bend the map for ever.
+    /// The fitted map for the way the axes last moved, once the clean sightings span both axes.
     pub fn model(&self) -> Option<Affine> {
         self.response()?.response.mean(on_axes(self.dir, self.band))
     }
 
-    /// The bench model of the clean sightings less those its chi-square test sets aside
-    /// ([`bench::robust_fit`]), with its uncertainty and the points it kept.
+    /// The bench model of the clean sightings, less those its chi-square test sets aside.
     fn response(&self) -> Option<bench::Fit> {
         let points = self.points(self.band);
         if !spans_both_axes(&points, self.min_spread) {
@@ -345,9 +311,7 @@ impl Tracker {
         bench::robust_fit(&points, self.noise, ROBUST_MIN_POINTS)
     }
 
-    /// Whether the feature lands within `tolerance` px of where the model predicts once the
-    /// mount is sent from where it is now to `command`, with probability `confidence`: what
-    /// the model does not know and the bench's own scatter ([`bench::Fit::sure_at`]).
+    /// Whether `command` lands the feature within `tolerance` px of the prediction at `confidence`.
     fn sure_at(&self, command: Vec2, tolerance: f64, confidence: f64) -> bool {
         self.response().is_some_and(|fit| {
             let dir = self.dir_towards(command);
@@ -355,11 +319,8 @@ impl Tracker {
         })
     }
 
-    /// Whether `command` puts the feature on `target` for good: it lands within `tolerance`
-    /// px of it at probability `confidence` ([`Self::sure_at`]), and the model as it was
-    /// before the latest sightings (`before`) believes so too. A refit that moves the final
-    /// command by more than the earlier model's uncertainty (the latest sightings changed
-    /// which ones the fit keeps) has not settled.
+    /// Whether `command` surely puts the feature on `target`, and the model `before` the latest
+    /// sightings agrees: a refit that moved the final command has not settled.
     pub fn settled_at(
         &self,
         before: &Tracker,
@@ -371,8 +332,7 @@ impl Tracker {
         self.sure_at(command, tolerance, confidence) && before.believes(command, target)
     }
 
-    /// Whether a sighting at `image` for `command` (the mount sent there from where it
-    /// is now) passes the model's chi-square test: `true` while there is no model.
+    /// Whether a sighting at `image` for `command` passes the chi-square test (`true` without one).
     pub fn believes(&self, command: Vec2, image: Vec2) -> bool {
         self.response().is_none_or(|fit| {
             let point = Point {
@@ -384,9 +344,7 @@ impl Tracker {
         })
     }
 
-    /// The bench model `fit`'s map for commands reached with the axes last moving in `dir`,
-    /// anchored at the latest clean sighting the fit did not reject: one it contradicts
-    /// (another beam taken for this one) would carry its error into every prediction.
+    /// `fit`'s map for `dir`, anchored at the latest clean sighting the fit kept.
     fn local_model(&self, fit: &bench::Fit, dir: Vec2) -> Option<Affine> {
         let model = fit.response.mean(dir)?;
         let Some(anchor) = self
@@ -412,10 +370,8 @@ impl Tracker {
         Some(model.predict(command))
     }
 
-    /// The command that puts the feature at `point` when the mount is sent there from
-    /// `from` (where it is now), within range: on a banded axis, the map of the direction
-    /// the move takes (which puts the command past the target by half the band on the side
-    /// it approaches from); an axis already there stays.
+    /// The command, within range, that puts the feature at `point` when sent from `from`; a banded
+    /// axis uses the map of the direction the move takes.
     pub fn command_for(&self, point: Vec2, from: Vec2) -> Option<Vec2> {
         let fit = self.response()?;
         let solve = |dir: Vec2| self.local_model(&fit, dir)?.solve(point);
@@ -439,13 +395,8 @@ impl Tracker {
         Some(self.clamp(command))
     }
 
-    /// Looks for a dead band on each axis not yet known to have one, among the axes with
-    /// enough clean sightings after moves either way: the fit with every such axis's band
-    /// against the same without this axis's. It is taken when it explains the misses beyond
-    /// chance (an F test at [`BAND_CONFIDENCE`], the scatter from the residuals and at
-    /// least the position noise) and by a real share of each sighting's miss (a screw's
-    /// pitch error or hysteresis leaves a scatter of a few noise levels that a band can fit
-    /// in part). True when a band was taken: every prediction changes.
+    /// Looks for a dead band on each axis with enough clean sightings after moves either way, taken
+    /// if significant ([`BAND_CONFIDENCE`]) and over [`BAND_WORTH_NOISES`]; true if one was taken.
     pub fn estimate_band(&mut self) -> bool {
         let eligible = [0, 1].map(|a| {
             let [plus, minus] =
@@ -477,8 +428,6 @@ impl Tracker {
         found
     }
 
-    /// What the tracker believes, for the transcript: how many sightings of each kind, the
-    /// fitted response, the lost motion, and where it puts the feature for `command`.
     pub fn claims(&self, command: Vec2) -> serde_json::Value {
         serde_json::json!({
             "sightings": {
@@ -492,14 +441,12 @@ impl Tracker {
         })
     }
 
-    /// Records a clean sighting at `command`, replacing an earlier one at the same command
-    /// and direction.
+    /// Records a clean sighting, replacing one at the same command and direction.
     pub fn add_clean(&mut self, command: Vec2, image: Vec2) {
         self.file_with(command, Sighting::Clean(image), self.dir);
     }
 
-    /// Forgets the clean sightings at `command`: the next frame repeats the one they were
-    /// made in, and one place must not count as many sightings.
+    /// Forgets the clean sightings at `command`, so a repeated frame there does not count twice.
     pub fn forget_clean(&mut self, command: Vec2) {
         self.clean
             .retain(|s| distance(s.command, command) >= SAME_STEP);
@@ -513,7 +460,6 @@ impl Tracker {
         }
     }
 
-    /// Files `seen` at `command`, made when the axes had last moved in directions `dir`.
     fn file_with(&mut self, command: Vec2, seen: Sighting, dir: Vec2) {
         self.made += 1;
         self.lost_at = None;
@@ -544,40 +490,33 @@ impl Tracker {
         self.missing.push(command);
     }
 
-    /// Whether no observation was made at the same probe as `command` (commands closer than a
-    /// share of the shorter probe, at least [`SAME_STEP`], count as the same probe).
+    /// Whether nothing was tried at `command` (within a share of the shorter probe).
     fn untried(&self, command: Vec2) -> bool {
         let same = (SAME_COMMAND_SHARE * self.probe[0].min(self.probe[1])).max(SAME_STEP);
         !self.tried_within(command, same)
     }
 
-    /// Whether any observation (clean, partial or missing) was made within `within` steps
-    /// of `command`.
+    /// Whether anything was seen or missed within `within` steps of `command`.
     pub fn tried_within(&self, command: Vec2, within: f64) -> bool {
         let near = |u: &Vec2| distance(*u, command) < within;
         let seen = self.clean.iter().chain(&self.partial).map(|s| &s.command);
         seen.chain(&self.missing).any(near)
     }
 
-    /// The width of the permitted range per axis, steps.
     pub fn spans(&self) -> Vec2 {
         self.range.map(|r| r[1] - r[0])
     }
 
-    /// The shorter of the permitted range's two widths, steps.
     pub fn shorter_span(&self) -> f64 {
         let [a, b] = self.spans();
         a.min(b)
     }
 
-    /// Clamps a command into the permitted range.
     pub fn clamp(&self, command: Vec2) -> Vec2 {
         [0, 1].map(|a| command[a].clamp(self.range[a][0], self.range[a][1]))
     }
 
-    /// The next command to learn the response: a move along an axis the clean observations
-    /// do not yet span, or, while the feature has not been measured cleanly, a step away
-    /// from where it showed partly, or an expanding search around the start.
+    /// The next probe: along an axis not yet spanned, near a partial sighting, or a search.
     pub fn next_probe(&self, start: Vec2) -> Vec2 {
         let [px, py] = self.probe;
         let candidates: Vec<Vec2> = if let Some(last) = self.clean.last() {
@@ -604,8 +543,7 @@ impl Tracker {
         } else if let Some(last) = self.partial.last() {
             rings(last.command, self.probe, 1..=1)
         } else if let Some(grid) = self.search_grid {
-            // A grid point within half a spacing of a miss on both axes looks at much the
-            // same patch of the bench as the miss did: the feature is not there.
+            // A grid point within half a spacing of a miss on both axes sees what it saw.
             let covered = |c: &Vec2| {
                 self.missing
                     .iter()
@@ -619,8 +557,7 @@ impl Tracker {
         } else {
             rings(start, [2.0 * px, 2.0 * py], 1..=6)
         };
-        // When all of those were tried, finer and finer grids around the start: a beam
-        // whose response is larger than the probes assumed hides between coarse points.
+        // Then finer grids: a beam that moves more per step than assumed hides between points.
         let finer = (0..=SEARCH_REFINEMENTS).flat_map(|level| {
             let spacing = self.probe.map(|p| p / f64::from(1 << level));
             square_rings(start, spacing, 1..=SEARCH_RINGS)
@@ -633,25 +570,16 @@ impl Tracker {
             .unwrap_or_else(|| self.clamp([start[0] + px, start[1] + py]))
     }
 
-    /// Sets the probe length per axis (the spread a fit needs stays as set: it is about
-    /// how well a measured centre pins a response, not about the probes' length).
+    /// Sets the probe length per axis (the spread a fit needs does not change with it).
     pub fn set_probe(&mut self, probe: Vec2) {
         self.probe = probe;
     }
 
-    /// Whether anything was seen or looked for yet.
     pub fn is_fresh(&self) -> bool {
         self.clean.is_empty() && self.partial.is_empty() && self.missing.is_empty()
     }
 
-    /// The next command to learn the response while bringing the feature towards `target`
-    /// (usually the centre) on an image of size `view`, keeping it `margin` px inside. From a fresh
-    /// start, one probe length along the first axis (the feature is usually in view at the
-    /// start). Once two clean sightings span one direction, the move along it that they
-    /// predict puts the feature nearest the centre, combined with a probe across it, short
-    /// enough that the feature stays in view whichever way it goes (at the response
-    /// measured along; either sign, then a third for a feature that left the image anyway):
-    /// the probe makes progress and is seen. Otherwise [`Self::next_probe`].
+    /// The next probe while steering the feature towards `target`, `margin` px inside image `view`.
     pub fn next_probe_towards(&self, start: Vec2, view: Vec2, target: Vec2, margin: f64) -> Vec2 {
         if self.is_fresh() {
             return self.clamp([start[0] + self.probe[0], start[1]]);
@@ -662,12 +590,8 @@ impl Tracker {
             .unwrap_or_else(|| self.next_probe(start))
     }
 
-    /// While the clean sightings fit no map, one fitted to the steering sightings (every
-    /// sighting until two clean ones span a direction) aims half-way from the latest
-    /// sighting to `target`, at most [`ROUGH_REACH`] probe
-    /// lengths per axis: a cut beam's centroid moves the right way but less than the beam,
-    /// so the rough map overestimates the move it needs. `None` while the sightings span no
-    /// two directions.
+    /// Without a fitted map, the rough map's command half-way to `target`, at most [`ROUGH_REACH`]
+    /// probes per axis: a cut beam's centroid moves less, so the rough map overestimates.
     fn rough_aim(&self, target: Vec2) -> Option<Vec2> {
         if self.model().is_some() {
             return None;
@@ -683,9 +607,7 @@ impl Tracker {
         self.untried(command).then_some(command)
     }
 
-    /// The map fitted to the steering sightings, through the latest of them (on effective
-    /// commands), and that sighting: `None` while they span no two directions or the map
-    /// says one direction hardly moves the feature.
+    /// The steering sightings' map, through the latest of them, and that one, unless degenerate.
     fn rough_map(&self) -> Option<(Affine, Sight)> {
         let sights = self.steering_sightings();
         let points: Vec<Point> = sights.iter().map(|s| s.point(self.band)).collect();
@@ -698,15 +620,13 @@ impl Tracker {
         Some((rough.anchored(latest.command, latest.image), latest))
     }
 
-    /// The best map there is: the fitted one, else the rough one of every sighting (`None`
-    /// while neither exists).
+    /// The best map there is: the fitted one, else the rough one.
     pub fn steering_map(&self) -> Option<Affine> {
         self.response()
             .and_then(|fit| self.local_model(&fit, on_axes(self.dir, self.band)))
             .or_else(|| self.rough_map().map(|(rough, _)| rough))
     }
 
-    /// The latest sighting, clean or partial.
     pub fn latest(&self) -> Option<&Sight> {
         self.clean
             .iter()
@@ -714,8 +634,7 @@ impl Tracker {
             .max_by_key(|s| s.order)
     }
 
-    /// When the last move lost a feature that showed just before, the same move the other
-    /// way from where it showed: it left the image that way, so the centre lies the other.
+    /// After a move lost the feature, the same move the other way from where it last showed.
     fn back_the_other_way(&self) -> Option<Vec2> {
         let lost = self.lost_at?;
         let last = self.latest()?;
@@ -723,9 +642,7 @@ impl Tracker {
         self.untried(back).then_some(back)
     }
 
-    /// The sightings a probe across is planned from: the clean ones when two of them span
-    /// a direction, else every sighting (a clipped beam's centroid moves less than the beam,
-    /// but the right way: steering by it overshoots towards the centre, into view).
+    /// The sightings to steer by: the clean ones once two span a direction, else all of them.
     fn steering_sightings(&self) -> Vec<Sight> {
         let spans = self.clean.last().is_some_and(|last| {
             self.clean

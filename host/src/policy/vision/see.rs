@@ -1,9 +1,5 @@
-//! What the agent sees in a frame and what a move changed. A [`View`] holds the frame's
-//! picture and its beams. [`motion`] finds the beam that moved in the two frames'
-//! difference, where everything that stayed cancels (stray light, the other beam, also
-//! when the moved beam was merged with it), and measures it on the views' own beams:
-//! where it was, where it went, or only one of the two when it left or entered the image.
-//! [`stationary_pairs`] pairs features that stayed, to measure the bench's jitter.
+//! What the agent sees in a frame ([`View`]) and what a move changed ([`motion`]: the beam that
+//! moved, found in the frames' difference, where all that stayed cancels).
 
 use optalign_optics::Frame;
 
@@ -36,13 +32,11 @@ impl View {
         [self.picture.width() as f64, self.picture.height() as f64]
     }
 
-    /// The shorter image side, px.
     pub fn shorter_side(&self) -> f64 {
         let [w, h] = self.size();
         w.min(h)
     }
 
-    /// The image centre, px.
     pub fn centre(&self) -> Vec2 {
         self.size().map(|s| s / 2.0)
     }
@@ -53,11 +47,9 @@ impl View {
 pub struct Seen {
     /// The beam there: the view's own detection, or only the change when that had none.
     pub beam: Beam,
-    /// Measured on the view's own beam, whole and alone (false: only the change, or a
-    /// detection that holds more than the moved beam).
+    /// Measured on the view's own beam, which holds the moved beam alone.
     pub whole: bool,
-    /// The change in the frames' difference: the moved beam alone, whatever it merged
-    /// with in the view (whole only when the beam moved clear of its other place).
+    /// The change in the frames' difference: the moved beam alone, whatever it merged with.
     pub change: Beam,
 }
 
@@ -78,17 +70,14 @@ pub fn alike(a: &Beam, b: &Beam) -> bool {
         && (ALIKE_LIGHT[0]..ALIKE_LIGHT[1]).contains(&light)
 }
 
-/// Whether the change `blob` lies inside one of `features` with less than `share` of its
-/// light: that feature's jitter, texture or flicker, not a beam that moved.
+/// Whether change `blob` lies inside one of `features` with under `share` of its light (flicker).
 pub fn residue<'a>(blob: &Beam, features: impl IntoIterator<Item = &'a Beam>, share: f64) -> bool {
     features
         .into_iter()
         .any(|f| distance(blob.centre, f.centre) < f.size() && blob.signal < share * f.signal)
 }
 
-/// The beams of `before` and `after` paired as stationary features (index pairs), nearest
-/// first; the rest are unpaired. A stationary feature may seem to move `steady` px (the
-/// bench's jitter as measured so far) or three times the two centres' combined uncertainty.
+/// The beams of `before` and `after` paired as stationary features (index pairs), nearest first.
 pub fn stationary_pairs(before: &[Beam], after: &[Beam], steady: f64) -> Vec<(usize, usize)> {
     let mut candidates: Vec<(f64, usize, usize)> = Vec::new();
     for (i, a) in before.iter().enumerate() {
@@ -112,12 +101,8 @@ pub fn stationary_pairs(before: &[Beam], after: &[Beam], steady: f64) -> Vec<(us
     pairs
 }
 
-/// The beam that moved from `before` to `after`: found in the frames' difference (what
-/// stayed cancels, whatever merged with it), measured on the views' own beams that did
-/// not stay put (`steady`: how far a stationary feature may seem to move). When several
-/// changes could be it, the one nearest `expected` (where the agent's model puts the moved
-/// beam now), else the strongest; `avoid` (another feature that moved in the same action,
-/// before and after) is not it.
+/// The beam that moved from `before` to `after`: the change nearest `expected` (else the
+/// strongest) other than `avoid`'s, measured on the views' beams that did not stay put.
 pub fn motion(
     before: &View,
     after: &View,
@@ -129,8 +114,7 @@ pub fn motion(
     motion_in(&moved, before, after, steady, expected, avoid)
 }
 
-/// [`motion`] read from the views' difference `moved` (what [`changes`], or its registered
-/// form, gave for them), for a caller that looks at the difference itself too.
+/// [`motion`] read from the views' difference `moved`, for a caller that looks at it too.
 pub fn motion_in(
     moved: &Changes,
     before: &View,
@@ -140,11 +124,7 @@ pub fn motion_in(
     avoid: Option<(Vec2, Vec2)>,
 ) -> Motion {
     let pairs = stationary_pairs(&before.beams, &after.beams, steady);
-    // The indices of the features that stayed, in each view.
     let (stayed_before, stayed_after): (Vec<usize>, Vec<usize>) = pairs.into_iter().unzip();
-    // The changes that may be the moved beam on one side of the move: not residue of the
-    // features that stayed in that `view` (`stayed`), and not the one nearest `avoid`'s place
-    // on that side.
     let candidates = |blobs: &[Beam], view: &View, stayed: &[usize], avoid: Option<Vec2>| {
         let mut real: Vec<Beam> = blobs
             .iter()
@@ -173,13 +153,11 @@ pub fn motion_in(
             .copied(),
         None => strongest(&vanished).copied(),
     };
-    // Far apart, or come into the view or gone out of it, each change is the whole beam: a
-    // detection there with much more light holds another beam too.
+    // Apart, each change is the whole beam: a detection with much more light holds another too.
     let apart = from
         .zip(to)
         .is_none_or(|(f, t)| distance(f.centre, t.centre) > APART_RADII * f.size().max(t.size()));
-    // Where a change shows in one view: the view's own detection that covers the change and
-    // did not stay put between the frames, nearest first; else only the change itself.
+    // A change's place: the nearest detection covering it that did not stay put, else itself.
     let place = |blob: Beam, beams: &[Beam], stayed: &[usize]| {
         let covering: Vec<Beam> = beams
             .iter()

@@ -1,11 +1,5 @@
-//! What the images teach the agent about the bench, and whether a detected beam is a
-//! sighting a model can be fitted to. [`Scales`] learns the beams' sizes, how far
-//! stationary features wander between frames (jitter) and how precise a centre is, so
-//! that every threshold is a multiple of something measured on this bench, not a pixel
-//! count of one camera. [`sight`] calls a beam clean when it is whole, compact and clear
-//! of the other beam; a beam the border cuts counts when a Gaussian fits it well. A beam's
-//! size is learned only where it shows with dark all round it. Whether a clean sighting
-//! is this beam at all is the bench model's chi-square test, not a rule of size.
+//! What the images teach about the bench ([`Scales`]: beam sizes, jitter, centre precision, so
+//! every threshold scales with this bench), and whether a beam is a sighting to fit ([`sight`]).
 
 use super::model::{Sighting, Vec2, distance};
 use super::see::{View, stationary_pairs};
@@ -18,20 +12,19 @@ use crate::imaging::{Beam, median};
 /// What the images taught about this bench.
 #[derive(Clone, Debug, Default)]
 pub struct Scales {
-    /// Radii of cleanly seen beams, per feature.
+    /// Radii of cleanly seen beams per feature, px.
     sizes: [Vec<f64>; 2],
-    /// The median radius of the beams in the views so far.
+    /// The median radius of the beams in the first view that showed any, px.
     typical: Option<f64>,
     /// The shorter image side, px.
     side: f64,
     /// Displacements of stationary features between frames, px.
     steady: Vec<f64>,
-    /// The median centre uncertainty of beams seen.
+    /// The median centre uncertainty of the latest view's beams, px.
     uncertainty: Option<f64>,
 }
 
-/// The radius assumed for a beam not yet measured, on an image whose shorter side is `side`
-/// px.
+/// The radius assumed for a beam not yet measured, px, given the image's shorter `side`.
 pub fn default_radius(side: f64) -> f64 {
     DEFAULT_RADIUS_SHARE * side
 }
@@ -47,15 +40,12 @@ impl Scales {
         self.uncertainty = median(spreads).or(self.uncertainty);
     }
 
-    /// Learns the size of feature `k` from a clean sighting.
     pub fn learn_size(&mut self, k: usize, radius: f64) {
         self.sizes[k].push(radius);
     }
 
-    /// Learns the size of feature `k` from a clean sighting of the whole beam in `view`,
-    /// when it lies [`CLEAR_OF_BORDER_RADII`] of its major radii clear of every border:
-    /// beside one, the spot may be one lobe of a beam whose node lies on the border (nothing
-    /// cut shows), much smaller than the beam.
+    /// Learns feature `k`'s size from a whole `beam` [`CLEAR_OF_BORDER_RADII`] major radii clear
+    /// of every border: beside one, the spot may be one lobe of a beam whose node lies on it.
     pub fn learn_shape(&mut self, k: usize, beam: &Beam, view: &View) {
         let margin = CLEAR_OF_BORDER_RADII * beam.radii[0];
         let size = view.size();
@@ -64,8 +54,7 @@ impl Scales {
         }
     }
 
-    /// Pairs the features that stayed between two views ([`stationary_pairs`]) and learns
-    /// the jitter from their displacement.
+    /// Pairs the features that stayed between two views and learns the jitter from their moves.
     pub fn learn_steady(&mut self, before: &View, after: &View) -> Vec<(usize, usize)> {
         let pairs = stationary_pairs(&before.beams, &after.beams, self.steady());
         for &(i, j) in &pairs {
@@ -75,8 +64,7 @@ impl Scales {
         pairs
     }
 
-    /// The radius of feature `k`, px: measured, else the other feature's, else the
-    /// typical beam in view, else a share of the image.
+    /// Feature `k`'s radius, px: its own, else the other's, the typical beam's, or a default.
     pub fn radius(&self, k: usize) -> f64 {
         self.known_radius(k)
             .or_else(|| self.known_radius(1 - k))
@@ -84,14 +72,12 @@ impl Scales {
             .unwrap_or(default_radius(self.side.max(1.0)))
     }
 
-    /// The known radius of feature `k`, when it was seen cleanly.
+    /// Feature `k`'s radius, px, once it was seen cleanly.
     pub fn known_radius(&self, k: usize) -> Option<f64> {
         median(self.sizes[k].clone())
     }
 
-    /// The RMS displacement of stationary features between frames, px, once measured: from
-    /// the median displacement (a pair that was not stationary after all does not count),
-    /// which for Gaussian jitter in two dimensions is 0.83 times the RMS.
+    /// RMS jitter between frames, px: median displacement / 0.833 (the ratio for 2-D Gaussians).
     fn jitter(&self) -> Option<f64> {
         median(self.steady.clone()).map(|m| m / 0.833)
     }
@@ -104,9 +90,8 @@ impl Scales {
         }
     }
 
-    /// The position noise a map fitted to sightings allows for, px: the scatter of one
-    /// measured centre, from the jitter of one frame (the RMS displacement between two frames
-    /// over √2) and the detector's own uncertainty, at least [`MIN_NOISE_PX`].
+    /// The scatter of one measured centre, px: one frame's jitter (RMS between frames over √2)
+    /// combined with the detector's uncertainty, at least [`MIN_NOISE_PX`].
     pub fn model_noise(&self) -> f64 {
         let jitter = self
             .jitter()
@@ -126,10 +111,8 @@ impl Scales {
     }
 }
 
-/// How `beam`, taken for feature `k`, serves the model: clean when whole, compact and clear
-/// of `other` (another known beam's place and radius); a beam the border cuts is clean at
-/// its fitted centre when a Gaussian of about the feature's known size fits it well and the
-/// centre is not far outside.
+/// How `beam`, taken for feature `k`, serves the model: clean when whole, compact and clear of
+/// `other` (a known beam's place and radius); a border-cut beam counts when a Gaussian fits well.
 pub fn sight(
     beam: &Beam,
     view: &View,
