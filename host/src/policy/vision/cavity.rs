@@ -1,10 +1,5 @@
-//! The cavity agent: the bright primary stays put and the centre of its core marks the
-//! target; the dim secondary is found in the difference between successive frames (the only
-//! thing that moves with the in-coupler; the earlier frame moved first by as much as the
-//! primary's core jittered, the secondary looked for at its own size). Probes map the
-//! in-coupler's response, a search covers the range while the secondary is unseen, checks
-//! beside the primary test the map, and the run is done when the model is sure at the final
-//! command. docs/vision.md ("Cavity") gives the whole procedure.
+//! The cavity agent: steers the dim secondary, seen in frame differences, onto the fixed
+//! primary's core, mapping the in-coupler by probes and checks. See docs/vision.md ("Cavity").
 
 use optalign_optics::Frame;
 
@@ -27,8 +22,7 @@ enum Step {
     Probe,
     /// A point near the target; the prediction made for it.
     Check(Option<Vec2>),
-    /// The secondary sent to the target without the model being sure, the budget all but
-    /// spent: the command stands to the end, and the run is not declared done.
+    /// The secondary to the target, unsure, the budget all but spent: stands, never done.
     Final,
 }
 
@@ -39,9 +33,7 @@ pub struct CavityAgent {
     command: Vec2,
     before: Vec2,
     previous: Option<View>,
-    /// The primary, measured on the first frame.
     primary: Option<Primary>,
-    /// The beams' sizes, the jitter and the position noise, as measured.
     scales: Scales,
     last: Step,
     /// Whether the last check found the secondary at all.
@@ -119,9 +111,7 @@ impl CavityAgent {
         self.send(u, Step::Check(self.tracker.predict(u)), false)
     }
 
-    /// What the agent believes after its last decision, for the transcript: what the
-    /// action was for, the target (the primary's centre, px) and its secondary tracker's
-    /// sightings, fitted response and where it expects the secondary.
+    /// What the agent believes, for the transcript: phase, target, primary and secondary tracker.
     pub fn claims(&self, done: bool) -> serde_json::Value {
         let phase = match (done, self.last) {
             (true, _) => "secondary to the primary, done",
@@ -139,13 +129,8 @@ impl CavityAgent {
         })
     }
 
-    /// The next command of the search for a secondary never seen: two rings around the
-    /// start in steps of a large share of the range, then finer and finer grids over the
-    /// whole range, each of half the spacing of the one before: first the centres of the
-    /// coarser grid's cells (the points farthest from every point tried), then the
-    /// midpoints of their edges, nearest the start first. A response larger than the
-    /// rings assumed shows the secondary only in a patch of commands smaller than their
-    /// spacing, anywhere in the range, not only near the start.
+    /// The next search command for a secondary never seen: two rings around the start, then ever
+    /// finer grids over the range (a large response shows it only in a small patch, anywhere).
     fn search(&self) -> Vec2 {
         let step = self.tracker.spans().map(|s| CAVITY_SEARCH_SHARE * s);
         let untried = |u: Vec2, spacing: Vec2| {
@@ -177,7 +162,6 @@ impl CavityAgent {
                 })
                 .collect();
             let far = |u: Vec2| (u[0] / step[0]).hypot(u[1] / step[1]);
-            // Cell centres (both indices odd) first, then edge midpoints; nearest first.
             points.sort_by(|(a, u), (b, v)| a.cmp(b).then(far(*u).total_cmp(&far(*v))));
             if let Some((_, u)) = points.into_iter().find(|&(_, u)| untried(u, half)) {
                 return u;
@@ -201,16 +185,12 @@ impl CavityAgent {
                 scene_shift(&before.picture, &view.picture, b, PRIMARY_CORE_SHARE)
             });
         let radius = self.scales.radius(SECONDARY);
-        // Looked for at its own size: a faint secondary in heavy noise stands out only
-        // averaged over its size.
+        // At its own size: a faint secondary in heavy noise stands out only averaged over it.
         let changes = registered_changes_sized(&before.picture, &view.picture, shift, radius);
         let steady = self.scales.steady();
         let moved = motion_in(&changes, &before, view, steady, expected, None);
         let hidden = HIDDEN_RADII * primary_radius;
-        // The secondary shows outside the primary's footprint, or where the change is clear
-        // of the primary's core (what the core covers, a saturated core above all, does not
-        // show in a difference), and where it went near where the map expects it once
-        // there is a map.
+        // Outside the primary or clear of its core (a saturated core hides changes); near the map.
         let outside = |s: &Seen| {
             let off = distance(s.change.centre, target);
             distance(s.beam.centre, target) > hidden || off - s.change.size() > primary.core
@@ -218,7 +198,6 @@ impl CavityAgent {
         let expected_near = |centre: Vec2| {
             expected.is_none_or(|p| distance(centre, p) < CAVITY_MATCH_RADII * radius.max(hidden))
         };
-        // A change of a pixel or two (a stray spot's flicker, a speck) is not the secondary.
         let like_secondary = |s: &Seen| s.change.size() >= MIN_CHANGE_RADIUS_PX;
         let appeared = moved
             .to
@@ -237,9 +216,7 @@ impl CavityAgent {
             return false;
         }
         let other = Some((target, primary_radius));
-        // Moved clear of its other place, the change is the whole secondary alone on a
-        // cancelled background: measured there, the primary's halo, rings and ghosts under
-        // it do not pull its centre, and it shows where the view's detection merged it.
+        // Moved clear of its other place, the change is the secondary alone: no halo pulls it.
         let apart = matches!((appeared, vanished), (Some(a), Some(v))
             if distance(a.change.centre, v.change.centre)
                 > APART_RADII * a.change.size().max(v.change.size()));
@@ -261,13 +238,11 @@ impl CavityAgent {
         if let (true, Some(v)) = (untried, seen_from) {
             self.tracker.file_before_move(self.before, v);
         }
-        // Sizes compare on the changes, the secondary alone on a cancelled background.
         if let (true, Some(Sighting::Clean(_)), Some(a), Some(v)) =
             (apart, seen_to, appeared, vanished)
             && !a.beam.clipped
         {
             self.scales.learn_size(SECONDARY, a.change.size());
-            // Later probes sized from the response this one showed, while there is no map.
             let step = distance(self.before, self.command);
             if !(step < SAME_STEP || self.tracker.model().is_some()) {
                 let response = distance(v.beam.centre, a.beam.centre) / step;
@@ -303,14 +278,12 @@ struct Primary {
     centre: Vec2,
     /// Its second-moment radius, px.
     radius: f64,
-    /// The radius of the disc as large as its light above [`PRIMARY_CORE_SHARE`] of its
-    /// peak, px.
+    /// Radius of the disc as large as its light above [`PRIMARY_CORE_SHARE`] of its peak, px.
     core: f64,
 }
 
 impl Primary {
-    /// The brightest beam in the first frame, else a disc of a share of the image at its
-    /// centre.
+    /// The brightest beam of the first frame, else a default disc at the image's centre.
     fn measure(view: &View) -> Self {
         let Some(b) = view.beams.first() else {
             let radius = default_radius(view.shorter_side());

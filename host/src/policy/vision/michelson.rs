@@ -1,11 +1,5 @@
-//! The Michelson agent: learns each mirror's motor-to-image response by moving one mirror
-//! at a time and watching which beam moves (everything else stays where it was), with
-//! probes sized from the response measured so far and steered to keep the beam in view;
-//! the other beam is parked out of the way while its mirror is known. With both maps known
-//! it checks both beams apart beside the centre, refits the maps with what the chi-square
-//! test believes, and declares done when the models put each beam within half the task's
-//! tolerance at the centre at a stated confidence. docs/vision.md ("Michelson") gives the
-//! whole procedure.
+//! The Michelson agent: maps each mirror by probing one at a time, checks both beams apart
+//! beside the centre, and is done once sure of both there. See docs/vision.md ("Michelson").
 
 use optalign_optics::Frame;
 
@@ -22,10 +16,7 @@ use super::tuning::{
 use crate::imaging::Beam;
 use crate::task::{Action, MichelsonLimits};
 
-/// The spacing per command axis of a search grid for a mount of response `gain` (px per
-/// step; rows image x and y) on an image of `size`: a move of one spacing along an axis
-/// shifts the view by [`GRID_VIEW_SHARE`] of the image along the image axis it moves the
-/// beam most in proportion, so the grid's views tile the command space.
+/// Search grid spacing per command axis, steps, moving the beam ≤ [`GRID_VIEW_SHARE`] of `size`.
 fn search_grid(gain: [[f64; 2]; 2], size: Vec2) -> Vec2 {
     [0, 1].map(|axis| {
         (0..2)
@@ -37,25 +28,20 @@ fn search_grid(gain: [[f64; 2]; 2], size: Vec2) -> Vec2 {
 /// What the last action was for.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 enum Step {
-    /// Nothing moved yet.
     #[default]
     Start,
-    /// Mirror `k` moved to learn its response; the other beam, when it was moved out of
-    /// the way at the same time, went from `parked.0` to `parked.1` (predicted).
+    /// Mirror `k` probed; the other beam, if parked in the move, went `parked.0` to `parked.1`.
     Probe {
         k: usize,
         parked: Option<(Vec2, Vec2)>,
     },
     /// Both beams placed apart near the centre; where the maps predicted them.
     Check { predicted: [Vec2; 2] },
-    /// Both mirrors moved to their next points of a blind search, neither beam seen yet:
-    /// one image searches two grids.
+    /// Both mirrors to their next blind-search points, neither beam seen: one image, two grids.
     Search { k: usize },
-    /// After a search showed a beam, mirror `k` alone moved a short way: the beam moves if
-    /// it is beam `k`, else it is the other mirror's (seen as `appeared`).
+    /// Mirror `k` alone moved a little to tell whose is the beam a search showed (`appeared`).
     Attribute { k: usize, appeared: Beam },
-    /// Both beams sent to the centre without the models being sure, the budget all but
-    /// spent: the command stands to the end, and the run is not declared done.
+    /// Both beams to the centre, unsure, the budget all but spent: stands, never declared done.
     Final,
 }
 
@@ -72,17 +58,14 @@ pub struct MichelsonAgent {
     checks: usize,
     /// The task's tolerance of the summed distance of the two beams from the centre, px.
     tolerance: f64,
-    /// Mirrors whose map was refuted: a check did not find the beam where the map put it.
-    /// They are probed again, as if unmapped, until seen clean.
+    /// Mirrors a check did not find where their map put them: probed again until seen clean.
     refuted: [bool; 2],
-    /// What the images taught about this bench: beam sizes, jitter.
     scales: Scales,
     /// A beam the last search showed, not yet told whose.
     appeared: Option<Beam>,
     /// Where the features that stayed put through the last probe are, px.
     stayed: Vec<Vec2>,
-    /// The most light each beam showed when seen clean and whole: a feature much fainter
-    /// is not that beam.
+    /// The most light each beam showed clean and whole: a much fainter feature is not that beam.
     light: [Option<f64>; 2],
 }
 
@@ -147,9 +130,7 @@ impl MichelsonAgent {
         self.check(centre, size)
     }
 
-    /// What the agent believes after its last decision, for the transcript: what the
-    /// action was for and, per mirror, its sightings, fitted response, lost motion and
-    /// where it expects that mirror's beam (px, x right, y down).
+    /// What the agent believes, for the transcript: the phase and each mirror's tracker.
     pub fn claims(&self, done: bool) -> serde_json::Value {
         let phase = match (done, self.last) {
             (true, _) => "both beams to the centre, done".to_string(),
@@ -197,8 +178,7 @@ impl MichelsonAgent {
         false
     }
 
-    /// Learns from a move of mirror `k` alone (the other parked, when `parked`); true when
-    /// its beam was seen clean where the move took it.
+    /// Learns from a move of mirror `k` alone; true when its beam was seen clean where it went.
     fn observe_probe(
         &mut self,
         before: &View,
@@ -214,7 +194,6 @@ impl MichelsonAgent {
         let moved = motion(before, after, self.scales.steady(), expected, parked);
         let untried = !self.trackers[k].tried_within(old, SAME_STEP);
         let radius = self.scales.radius(j);
-        // The other beam where it was parked, else where its map puts it (mirror `j` at `v`).
         let judge = |seen: Option<Seen>, view: &View, parked: Option<Vec2>, v: Vec2| {
             let seen = seen?;
             let other = parked.or_else(|| self.trackers[j].predict(v));
@@ -231,12 +210,10 @@ impl MichelsonAgent {
         if untried && let Some(s) = seen_from {
             self.trackers[k].file_before_move(old, s);
         }
-        // Clean means not cut by the border (`sight`).
         if let (Some(Sighting::Clean(_)), Some(s)) = (seen_to, moved.to) {
             self.scales.learn_shape(k, &s.beam, after);
             self.light[k] = Some(self.light[k].map_or(s.beam.signal, |l| l.max(s.beam.signal)));
         }
-        // The parked beam, found near where its map sent it.
         if let Some(c) = parked.and_then(|(_, to)| self.find_near(after, j, to)) {
             self.trackers[j].add_clean(self.command[j], c);
         }
@@ -244,10 +221,7 @@ impl MichelsonAgent {
         matches!(seen_to, Some(Sighting::Clean(_) | Sighting::Fitted(_)))
     }
 
-    /// Sizes the next probes of mirror `k` from what the last one showed: a clean motion
-    /// gives the response and with it the command for a useful move; a beam that did not
-    /// move calls for a longer probe, one that left the image for a shorter one; while the
-    /// beam shows only partly or not at all, the probes search in big steps.
+    /// Sizes mirror `k`'s next probes from what the last one showed of its beam.
     fn adapt_probe(&mut self, k: usize, seen: [Option<Sighting>; 2], step: f64, after: &View) {
         if step < SAME_STEP {
             return;
@@ -275,19 +249,14 @@ impl MichelsonAgent {
             }
             [None, None] if !self.trackers[k].clean.is_empty() => {
                 if self.trackers[k].model().is_none() && !self.still_in_view(k, after) {
-                    // Not yet mapped, and out of view before and after the move: it says
-                    // nothing of the response, and a longer probe only strays farther
-                    // from where the beam was seen.
+                    // Out of view before and after: a longer probe would only stray farther.
                     probe
                 } else {
-                    // Seen before, no change now: it hardly moved.
                     scaled(PROBE_GROWTH)
                 }
             }
             [None, None] => {
-                // Never seen whole: search in big steps, wider each time; once the other
-                // mirror's response is known (the two mounts are alike), on a grid whose
-                // gaps the image spans.
+                // Never seen whole: big steps; on a grid once the other (alike) mount is mapped.
                 let search = match self.trackers[1 - k].model() {
                     Some(other) => {
                         let side = after.shorter_side();
@@ -305,13 +274,8 @@ impl MichelsonAgent {
         self.trackers[k].set_probe(length);
     }
 
-    /// Where probes of mirror `k` steer its beam on an image of `size`: the `centre`, unless
-    /// what it must not be steered onto ([`Self::obstacle`]) sits within [`MICHELSON_APART_RADII`]
-    /// summed radii of it. Then the point that far from the obstacle, straight away from it
-    /// towards where the probed beam was last seen (through the centre when that is on the
-    /// obstacle), turned as little as keeps it whole in view. At a small response the
-    /// command range holds both beams near the centre, and probes steered there keep them
-    /// merged: the probed beam would never be seen alone.
+    /// Where probes steer beam `k`: the `centre`, or, with [`Self::obstacle`] near it, a place in
+    /// view [`MICHELSON_APART_RADII`] summed radii from it, lest the two beams stay merged.
     fn probe_target(&self, k: usize, centre: Vec2, size: Vec2) -> Vec2 {
         let Some((other, from)) = self.obstacle(k, centre) else {
             return centre;
@@ -335,9 +299,7 @@ impl MichelsonAgent {
                 other[1] + apart * angle.sin(),
             ])
         };
-        // Where the beam can go at all, by the best map there is (a rough map of merged
-        // sightings understates the reach): targets it can reach first, and when none of
-        // them is far enough, the reachable place farthest from the obstacle.
+        // Reachable targets first; if none is far enough, the reachable place farthest away.
         let tracker = &self.trackers[k];
         let map = tracker.steering_map();
         let reachable =
@@ -366,12 +328,8 @@ impl MichelsonAgent {
             .unwrap_or(centre)
     }
 
-    /// What the beam of mirror `k` must not be steered onto, and where that beam was last
-    /// seen (px): the other beam where its map puts it (where it will be parked, when it
-    /// can be); else, when the probed beam was last seen merged (partly, clear of the
-    /// border), the feature that stayed put through the last probe nearest it, or the
-    /// merged detection itself when none did. Features that stayed put are not avoided
-    /// while the probed beam shows clean: stray spots would push the probes about.
+    /// What beam `k` must not be steered onto, and where it was last seen, px: the other beam;
+    /// else, if `k` was last seen merged (not clean), the nearest feature that stayed put.
     fn obstacle(&self, k: usize, centre: Vec2) -> Option<(Vec2, Vec2)> {
         let tracker = &self.trackers[k];
         let latest = tracker.latest()?;
@@ -384,7 +342,7 @@ impl MichelsonAgent {
         {
             return Some((p, latest.image));
         }
-        // Within BORDER_RADII of its radius of a border, it is cut by it, not merged.
+        // Near a border a partial sighting is cut, not merged.
         let border = BORDER_RADII * self.scales.radius(k);
         let at_border = (0..2).any(|a| centre[a] - (latest.image[a] - centre[a]).abs() < border);
         let merged = tracker.partial.iter().any(|s| s.order == latest.order) && !at_border;
@@ -395,7 +353,6 @@ impl MichelsonAgent {
         merged.then_some((stayed.copied().unwrap_or(latest.image), latest.image))
     }
 
-    /// Whether `view` shows a beam where beam `k` was last seen (within the match radius).
     fn still_in_view(&self, k: usize, view: &View) -> bool {
         let reach = MICHELSON_MATCH_RADII * self.scales.radius(k);
         self.trackers[k].latest().is_some_and(|last| {
@@ -410,9 +367,7 @@ impl MichelsonAgent {
         (MICHELSON_PROBE_RADII * self.scales.radius(k)).min(PROBE_VIEW_SHARE * size[0].min(size[1]))
     }
 
-    /// Learns from a check whose maps put the beams at `predicted`; a check that `repeated`
-    /// the one before replaces its sightings. True when both beams were where their maps put
-    /// them and the final command is sure ([`Self::sure_at_centre`]).
+    /// Learns from a check (`repeated`: replacing the last's); true if both maps held and are sure.
     fn observe_check(&mut self, view: &View, predicted: [Vec2; 2], repeated: bool) -> bool {
         let found = [0, 1].map(|k| self.find_near(view, k, predicted[k]));
         if let [Some(a), Some(b)] = found
@@ -420,7 +375,6 @@ impl MichelsonAgent {
         {
             return false;
         }
-        // Each beam where its map put it, by the chi-square test of the innovation.
         let believed =
             (0..2).all(|k| found[k].is_some_and(|c| self.trackers[k].believes(self.command[k], c)));
         let before_refit = self.trackers.clone();
@@ -439,11 +393,8 @@ impl MichelsonAgent {
         believed && !relearned && self.sure_at_centre(view.centre(), &before_refit)
     }
 
-    /// Whether the final command (both beams to `centre`) puts the beams within the task's
-    /// tolerance of it at [`DONE_CONFIDENCE`] (each within half of it at the square root of
-    /// that probability, the two beams' errors being independent), and the models as they
-    /// were before the last sightings (`before`) believe it puts them there
-    /// ([`Tracker::settled_at`]).
+    /// Whether both beams land within half the tolerance of `centre`, each at the root of
+    /// [`DONE_CONFIDENCE`], by the models now and `before` the last check.
     fn sure_at_centre(&self, centre: Vec2, before: &[Tracker; 2]) -> bool {
         let each = DONE_CONFIDENCE.sqrt();
         (0..2).all(|k| {
@@ -456,9 +407,7 @@ impl MichelsonAgent {
         })
     }
 
-    /// Whether the last command moved neither beam by as much as the smallest scatter of a
-    /// centre ([`MIN_NOISE_PX`]), by their maps: its frame repeats the one before, and what
-    /// seems to move between the two is the bench's jitter.
+    /// Whether the maps say the last command moved neither beam by [`MIN_NOISE_PX`]: only jitter.
     fn repeated(&self) -> bool {
         (0..2).all(|k| {
             let predict = |u| self.trackers[k].predict(u);
@@ -468,8 +417,7 @@ impl MichelsonAgent {
         })
     }
 
-    /// The clean centre of beam `k` nearest `point` in `view`, within the match radius, of a
-    /// detection with at least [`ALIKE_LIGHT`]'s lower share of the beam's light.
+    /// Beam `k`'s clean centre nearest `point` (match radius), bright enough by [`ALIKE_LIGHT`].
     fn find_near(&self, view: &View, k: usize, point: Vec2) -> Option<Vec2> {
         let radius = self.scales.radius(k);
         view.beams
@@ -480,8 +428,7 @@ impl MichelsonAgent {
             .min_by(|a, b| distance(*a, point).total_cmp(&distance(*b, point)))
     }
 
-    /// A fresh mirror's probes move its beam a useful distance at the other mirror's
-    /// measured response (mounts of one kind respond alike).
+    /// Sizes a fresh mirror's probes at the other's response (mounts of a kind respond alike).
     fn scale_probe(&mut self, k: usize, size: Vec2) {
         let Some(known) = self.trackers[1 - k].model() else {
             return;
@@ -498,8 +445,7 @@ impl MichelsonAgent {
         self.trackers[k].set_probe(probe);
     }
 
-    /// Moves mirror `k` to `u`; the other beam, when its map is known and it sits where the
-    /// probed beam is being steered, goes aside in the same move.
+    /// Moves mirror `k` to `u`, parking the other beam in the same move ([`Self::parking`]).
     fn probe(&mut self, k: usize, u: Vec2, centre: Vec2) -> Action {
         let parking = self.parking(k, centre);
         self.set_mirror(k, self.trackers[k].clamp(u));
@@ -510,9 +456,8 @@ impl MichelsonAgent {
         self.send(Step::Probe { k, parked }, false)
     }
 
-    /// Where the other mirror goes while mirror `k` is probed, when its map is known and
-    /// its beam sits where the probed one is being steered: its command, where its beam is
-    /// now and where it lands (the side of the image away from the probed beam).
+    /// Where the other, mapped mirror goes while `k` is probed, if its beam is near the centre:
+    /// its command, where its beam is now and where it lands (away from the probed beam).
     fn parking(&self, k: usize, centre: Vec2) -> Option<(Vec2, Vec2, Vec2)> {
         let j = 1 - k;
         let now = self.trackers[j].predict(self.command[j])?;
@@ -532,13 +477,11 @@ impl MichelsonAgent {
         (distance(landing, spot) < self.scales.radius(j)).then_some((v, now, landing))
     }
 
-    /// Whether mirror `k`'s beam was ever seen, clean or partly.
     fn sighted(&self, k: usize) -> bool {
         self.trackers[k].latest().is_some()
     }
 
-    /// Moves mirror `k` to `u` and the other mirror to the next point of its own search,
-    /// at the same probe length.
+    /// Moves mirror `k` to `u` and the other to its own next search point, at one probe length.
     fn search(&mut self, k: usize, u: Vec2) -> Action {
         let j = 1 - k;
         let (probe, grid) = (self.trackers[k].probe, self.trackers[k].search_grid);
@@ -550,8 +493,7 @@ impl MichelsonAgent {
         self.send(Step::Search { k }, false)
     }
 
-    /// Learns from a search: nothing seen is a miss for both mirrors; a beam that showed
-    /// is told whose by the next move.
+    /// Learns from a search: nothing seen is a miss for both; a beam seen is attributed next.
     fn observe_search(&mut self, before: &View, after: &View, k: usize) {
         if let Some(seen) = motion(before, after, self.scales.steady(), None, None).to {
             self.appeared = Some(seen.beam);
@@ -562,9 +504,7 @@ impl MichelsonAgent {
         self.trackers[j].add_missing(self.command[j]);
     }
 
-    /// Moves mirror `k` alone a short way (its first, cautious probe length along its
-    /// first axis, towards the middle of its range): the beam a search showed moves if it
-    /// is beam `k`.
+    /// Moves mirror `k` alone a cautious step towards its range's middle: the beam moves if `k`'s.
     fn attribute(&mut self, k: usize, appeared: Beam) -> Action {
         let now = self.command[k];
         let [low, high] = self.trackers[k].range[0];
@@ -578,8 +518,7 @@ impl MichelsonAgent {
         self.send(Step::Attribute { k, appeared }, false)
     }
 
-    /// Learns from an attribution move of mirror `k`: a beam it moved is beam `k`
-    /// (learned as a probe); else the beam the search showed is the other mirror's.
+    /// Learns from an attribution move: a beam it moved is `k`'s, else the search's is the other's.
     fn observe_attribute(&mut self, before: &View, after: &View, k: usize, appeared: &Beam) {
         if self.observe_probe(before, after, k, None) || self.sighted(k) {
             return;
@@ -590,7 +529,6 @@ impl MichelsonAgent {
         self.trackers[j].file(self.command[j], Some(sighting));
     }
 
-    /// Sets mirror `k`'s command, booking the move on its tracker.
     fn set_mirror(&mut self, k: usize, u: Vec2) {
         self.trackers[k].moved(self.command[k], u);
         self.command[k] = u;
@@ -600,7 +538,6 @@ impl MichelsonAgent {
     fn check(&mut self, centre: Vec2, size: Vec2) -> Action {
         let radius = 0.5 * (self.scales.radius(0) + self.scales.radius(1));
         let wanted = CHECK_APART_RADII[self.checks.min(CHECK_APART_RADII.len() - 1)] * radius;
-        // Along each image axis, as far apart as wanted while both stay whole.
         let [ax, ay] = [0, 1].map(|axis| {
             wanted
                 .min(size[axis] / 2.0 - WHOLE_RADII * radius)
@@ -612,8 +549,7 @@ impl MichelsonAgent {
             [[ax, 0.0], [-ax, 0.0]],
             [[0.0, ay], [0.0, -ay]],
         ];
-        // From the next layout in turn, the first whose commands put both beams where wanted
-        // (within), else the first solved.
+        // From the next layout on, the first landing both beams as wanted, else the first solved.
         let mut candidates = (self.checks..self.checks + layouts.len()).filter_map(|i| {
             let targets = layouts[i % layouts.len()].map(|d| [centre[0] + d[0], centre[1] + d[1]]);
             let [a, b] = [0, 1].map(|k| self.trackers[k].command_for(targets[k], self.command[k]));
@@ -639,8 +575,7 @@ impl MichelsonAgent {
         self.send(Step::Check { predicted }, false)
     }
 
-    /// Both beams to the centre: done when the models are `sure` of it, else the command
-    /// that stands to the end of the budget ([`Step::Final`]).
+    /// Both beams to the centre: done when `sure`, else it stands to the end ([`Step::Final`]).
     fn finish(&mut self, centre: Vec2, sure: bool) -> Action {
         for k in 0..2 {
             if let Some(u) = self.trackers[k].command_for(centre, self.command[k]) {
@@ -650,7 +585,6 @@ impl MichelsonAgent {
         self.send(Step::Final, sure)
     }
 
-    /// Books `step` as what the action is for and sends both mirrors' commands.
     fn send(&mut self, step: Step, done: bool) -> Action {
         self.last = step;
         let [[a, b], [c, d]] = self.command.map(|u| u.map(|v| v.round() as i32));

@@ -1,10 +1,6 @@
-//! The relay agent: aligns the mirrors in order along the beam, each first at the near
-//! station of its outgoing segment (find the spot, learn the 2 x 2 response, centre it),
-//! then at the far station with that response scaled by the stations' distances; at C8,
-//! with a centred compact spot averaged over as many camera placements as the mover's
-//! repeatability calls for, it declares done. Stray light is remembered per station and
-//! taken off as a backdrop (`backdrops`). docs/vision.md ("Relay") gives the whole
-//! procedure.
+//! The relay agent: centres each mirror's spot in turn, at its near station and then at its far
+//! one with the response scaled by distance; done when C8 is centred on average over enough
+//! camera placements. See docs/vision.md ("Relay").
 
 use nalgebra::{Matrix2, Vector2};
 use optalign_optics::{Frame, Station};
@@ -24,12 +20,9 @@ use super::tuning::{
 use crate::imaging::{Beam, strongest};
 use crate::task::{BenchGeometry, RelayAction, RelayLimits};
 
-/// What the agent is doing for the current mirror.
 #[derive(Clone, Copy, Debug, PartialEq)]
 enum Phase {
-    /// Going to, or working at, the near station.
     Near,
-    /// Working at the far station.
     Far,
 }
 
@@ -44,16 +37,13 @@ pub struct RelayAgent {
     placements: Vec<(Vec2, Vec2)>,
     /// The camera was moved to its station since the last whole spot was booked there.
     placed: bool,
-    /// The image's shorter side, px, when the bench's geometry gives it.
     image_side_px: Option<f64>,
-    /// The spot's expected travel per step at 1 mm from the mirror, px, when the bench's
-    /// tilt per step and pixel pitch are known: sizes the first probes.
+    /// The spot's travel per step at 1 mm from the mirror, px, when the geometry gives it.
     px_per_step_mm: Option<f64>,
     cumulative: [i32; 8],
     station: usize,
     mirror: usize,
     phase: Phase,
-    /// The search for a spot never seen at the near station.
     search: Tracker,
     /// The current mirror's tilt when its alignment began (the centre of any search).
     near_start: Vec2,
@@ -61,11 +51,9 @@ pub struct RelayAgent {
     far: Servo,
     far_steps: usize,
     far_dark: usize,
-    /// Where the mirror was tilted when the camera went to the far station (the centre of a
-    /// search there).
+    /// The mirror's tilt when the camera went to the far station (the centre of a search there).
     far_start: Vec2,
-    /// The latest near response measured (px per step) and its station: the next mirror's
-    /// first guess.
+    /// The latest near response measured (px per step) and its station: the next mirror's guess.
     known_near: Option<([[f64; 2]; 2], usize)>,
     /// The last frame, the station it was taken at and the tilts then.
     previous: Option<(View, usize, [i32; 8])>,
@@ -76,7 +64,6 @@ pub struct RelayAgent {
     last: Option<RelayAction>,
     /// The spot in the last frame, px.
     seen_at: Option<Vec2>,
-    /// Each station's stationary light, learned by throwing the spot clear of itself.
     backdrops: Backdrops,
     /// The throw whose frame comes next.
     throw: Option<Throw>,
@@ -100,15 +87,13 @@ impl RelayAgent {
                 .tilt_rad_per_step
                 .zip(geometry.pixel_pitch_mm())
                 .map(|(tilt, pitch)| {
-                    // The beam turns by twice the tilt; a vertical tilt of a 45 degree mirror
-                    // by 2 θ cos 45°: the smaller of the two.
+                    // The smaller beam turn: 2 θ cos 45° (vertical tilt, 45° mirror).
                     2.0 * tilt * std::f64::consts::FRAC_1_SQRT_2 / pitch[0].max(pitch[1])
                 }),
             cumulative: [0; 8],
             station: 7,
             mirror: 0,
             phase: Phase::Near,
-            // Set from the bench below (`new_search`).
             search: Tracker::new([1.0; 2], [[0.0; 2]; 2]),
             near_start: [0.0; 2],
             near: Servo::new(1.0, [1.0, 1.0], None),
@@ -131,17 +116,14 @@ impl RelayAgent {
         agent
     }
 
-    /// The spot's nominal travel per step at `station`, px, when the bench's geometry
-    /// gives it.
+    /// The spot's nominal travel per step at `station`, px, when the geometry gives it.
     fn nominal_response(&self, station: usize) -> Option<f64> {
         self.px_per_step_mm
             .zip(self.distances)
             .map(|(r, d)| r * d[station])
     }
 
-    /// The search for the current mirror's spot: on a grid whose gaps the image spans at
-    /// the nominal response, when the bench's geometry gives it; else from a cautious share
-    /// of the range, growing while nothing shows.
+    /// The current mirror's search: a grid at the nominal response, else a growing cautious one.
     fn new_search(&self) -> Tracker {
         let bound = f64::from(self.limits.max_cumulative);
         let probe = match self
@@ -156,7 +138,6 @@ impl RelayAgent {
         Tracker::new([probe, probe], [[-bound, bound], [-bound, bound]])
     }
 
-    /// The longest search probe, steps.
     fn widest_search(&self) -> f64 {
         MAX_SEARCH_SHARE * f64::from(self.limits.max_cumulative)
     }
@@ -191,8 +172,7 @@ impl RelayAgent {
             return self.act(tilt_by(self.mirror, throw.0));
         }
         self.previous = Some((view, self.station, self.cumulative));
-        // With the budget all but spent the run ends imaged at C8, declared done only when
-        // the spot was centred there (`far_phase`).
+        // Budget all but spent: end imaged at C8, done only if centred there (`far_phase`).
         if remaining <= 1 || (remaining <= 2 && self.station != 7) {
             return self.act(measure(7));
         }
@@ -205,9 +185,7 @@ impl RelayAgent {
         }
     }
 
-    /// The beam's spot in `view`: features known to stay put at this station are stray
-    /// light; after a tilt at the same station, what moved is the beam (what stayed is
-    /// remembered as stray); otherwise the strongest remaining feature.
+    /// The spot in `view`: what moved after a tilt here (what stayed is stray), else the strongest.
     fn find_spot(&mut self, view: &View) -> Option<Beam> {
         let radius = self.radius.unwrap_or(default_radius(view.shorter_side()));
         let candidates: Vec<Beam> = view
@@ -217,9 +195,7 @@ impl RelayAgent {
             .copied()
             .collect();
         let steady = RELAY_STEADY_RADII * radius;
-        // A short move shows only as a change next to the spot, not as the spot: the spot
-        // itself is then the strongest feature, as when nothing moved. A faint change far
-        // from the light (speckle shifting) is not the beam either.
+        // A faint change (a short move's edge, shifting speckle) is not the spot: the strongest is.
         let strongest_light = strongest(&candidates).map_or(0.0, |b| b.signal);
         if let Some((before, station, tilts)) = &self.previous
             && *station == self.station
@@ -228,7 +204,6 @@ impl RelayAgent {
                 .to
                 .filter(|seen| seen.whole && seen.beam.signal >= MOVED_SHARE * strongest_light)
         {
-            // Something moved with the tilt: what stayed is stray light.
             for (i, _) in stationary_pairs(&before.beams, &view.beams, steady) {
                 let p = before.beams[i].centre;
                 if !self.stray_near(p, STRAY_RADII * radius) {
@@ -240,17 +215,13 @@ impl RelayAgent {
         strongest(&candidates).copied()
     }
 
-    /// Whether stray light is known at this station within `within` px of `p`.
     fn stray_near(&self, p: Vec2, within: f64) -> bool {
         self.stray
             .iter()
             .any(|(s, q)| *s == self.station && distance(*q, p) < within)
     }
 
-    /// The next action of a throw under way (`None`: none is): on the frame after a
-    /// throw, the station's backdrop once the spot is clear of where it was (a further
-    /// throw when it is not yet); then back to where the mirror was, in as many tilts as the
-    /// longest allowed takes.
+    /// The next action of a throw under way, if any: learn the backdrop, then tilt back.
     fn throw_under_way(&mut self, frame: &Frame, rejected: bool) -> Option<RelayAction> {
         if let Some(mut throw) = self.throw.take().filter(|_| !rejected) {
             let outcome = self.backdrops.learn(&throw, frame);
@@ -280,10 +251,7 @@ impl RelayAgent {
         None
     }
 
-    /// A tilt of one axis of the current mirror, steps, that moves `spot` clear of itself
-    /// (by [`THROW_RADII`] of its radii, at the response known or nominal here), towards
-    /// the middle of the axis's range, and how far it moves the spot, px; `None` when the
-    /// response is unknown or no axis has room.
+    /// A one-axis tilt, steps, throwing `spot` [`THROW_RADII`] radii inwards, and its reach, px.
     fn throw_step(&self, spot: &Beam) -> Option<(Vec2, f64)> {
         let gain = self
             .servo()
@@ -324,7 +292,6 @@ impl RelayAgent {
             Phase::Near => "near station",
             Phase::Far => "far station",
         };
-        // How far the average of C8's placements misses the centre, px (0 while unknown).
         let average = self.placements_average(self.command_of(3));
         let centre = self.previous.as_ref().map(|(view, _, _)| view.centre());
         let miss = average.zip(centre).map_or(0.0, |(a, c)| distance(a, c));
@@ -342,10 +309,7 @@ impl RelayAgent {
         })
     }
 
-    /// A servo for the current mirror at `station`, with a known response (the far
-    /// station's, scaled from the near one) or probes sized for a useful first move: at the
-    /// bench's nominal response, else at the latest measured one, else a cautious share of
-    /// the range.
+    /// A servo at `station`, with response `gain` if known, else probes sized by the best guess.
     fn new_servo(&self, station: usize, gain: Option<[[f64; 2]; 2]>) -> Servo {
         let range = 2.0 * f64::from(self.limits.max_cumulative);
         let side = self.image_side_px.or_else(|| {
@@ -358,28 +322,24 @@ impl RelayAgent {
             (Some(response), Some(side)) => useful_probe(side, response),
             _ => CAUTIOUS_SHARE * range,
         };
-        // The shortest and longest probe or step: shares of the command range.
         Servo::new(probe, RELAY_PROBE_SHARES.map(|share| share * range), gain)
     }
 
-    /// The servo of the current mirror's near station: it starts from the latest near
-    /// response measured, as a guess, when there is one.
+    /// The near station's servo, starting from the latest near response measured as a guess.
     fn new_near_servo(&self) -> Servo {
         let near_station = 2 * self.mirror;
         self.new_servo(near_station, None)
             .assume(self.assumed_gain(near_station))
     }
 
-    /// The latest near response measured, scaled to `station` by the stations' distances
-    /// when the bench gives them.
+    /// The latest near response measured, scaled to `station` by the stations' distances if known.
     fn assumed_gain(&self, station: usize) -> Option<[[f64; 2]; 2]> {
         let (gain, measured_at) = self.known_near?;
         let ratio = self.distances.map_or(1.0, |d| d[station] / d[measured_at]);
         Some(gain.map(|row| row.map(|v| v * ratio)))
     }
 
-    /// Where the spot is: its centroid, and whether it is whole enough to steer by (cut by
-    /// the sensor's edge, its centroid only points the way).
+    /// The spot's centroid and whether it is whole enough to steer by (if cut, it points the way).
     fn estimate(&self, s: &Beam) -> Spot {
         let whole = s.edge_level < WHOLE_ENOUGH_EDGE;
         Spot {
@@ -391,9 +351,7 @@ impl RelayAgent {
         }
     }
 
-    /// At the near station: the servo drives the spot to the centre (searching outwards
-    /// while it has never shown); once it is centred and whole, the far station's response
-    /// is the near one scaled by the stations' distances, and the camera goes there.
+    /// At the near station: centre the spot (searching while never seen), then go to the far one.
     fn near_phase(&mut self, spot: Option<Beam>, centre: Vec2, size: Vec2) -> RelayAction {
         let u = self.command_of(self.mirror);
         let side = size[0].min(size[1]);
@@ -411,8 +369,6 @@ impl RelayAgent {
         {
             let gain = self.near.gain();
             self.known_near = gain.map(|g| (g, near_station)).or(self.known_near);
-            // The far servo starts from the response just measured here, scaled to the far
-            // station by the stations' distances, when both are known.
             let scaled = self.assumed_gain(near_station + 1);
             self.far = self.new_servo(near_station + 1, gain.and(self.distances).and(scaled));
             self.far_steps = 0;
@@ -424,7 +380,6 @@ impl RelayAgent {
         if let Some(next) = self.near.next(centre) {
             return self.tilt_to(next);
         }
-        // Never seen here: search outwards around the start, wider each ring.
         self.search.add_missing(u);
         if self.search.missing.len() > 1 && self.nominal_response(2 * self.mirror).is_none() {
             let widest = self.widest_search();
@@ -434,10 +389,7 @@ impl RelayAgent {
         self.tilt_to(self.search.next_probe(self.near_start))
     }
 
-    /// At the far station: the servo drives the spot to the centre with the response scaled
-    /// from the near station (or probed here, without the bench's distances). Dark, with
-    /// that response: a search of the views around; when it finds nothing, or after too
-    /// many steps, back to the near station to start again.
+    /// At the far station: centre the spot, searching around while dark; failing, back to the near.
     fn far_phase(&mut self, spot: Option<Beam>, centre: Vec2, size: Vec2) -> RelayAction {
         let u = self.command_of(self.mirror);
         let side = size[0].min(size[1]);
@@ -448,15 +400,12 @@ impl RelayAgent {
             self.far = self.new_servo(7, self.far.gain());
         }
         if let Some(s) = seen.filter(|s| s.whole && last) {
-            // Booked at C8 as where the spot showed whole in this placement (the latest).
             if !std::mem::take(&mut self.placed) {
                 self.placements.pop();
             }
             self.placements.push((u, s.at));
         }
-        // Where the spot sits in this placement when the average of the placements is
-        // centred, at C8 when the camera mover's repeatability calls for more than one;
-        // elsewhere, the centre.
+        // At C8, with several placements needed, aim so that their average is centred.
         let target = match seen.filter(|s| s.whole && last && self.placements_needed(0.0) > 1) {
             Some(s) => {
                 let average = self.placements_average(u).unwrap_or(s.at);
@@ -481,8 +430,7 @@ impl RelayAgent {
             if self.placements.len() >= self.placements_needed(miss) {
                 return self.act(RelayAction::Done);
             }
-            // Centred in this placement, not yet on average over enough of them: place
-            // the camera again (by way of C7).
+            // Too few placements yet: place the camera again (by way of C7).
             return self.act(measure(6));
         }
         if self.far.best().is_none() {
@@ -503,8 +451,7 @@ impl RelayAgent {
         }
     }
 
-    /// Where the spot shows at tilt `u` on average over C8's placements (each carried to
-    /// `u` by C8's response), when there are any and the response is known.
+    /// The spot's place at tilt `u` averaged over C8's placements, each carried to `u`.
     fn placements_average(&self, u: Vec2) -> Option<Vec2> {
         let gain = self.far.gain().filter(|_| !self.placements.is_empty())?;
         let n = self.placements.len() as f64;
@@ -516,11 +463,7 @@ impl RelayAgent {
         Some(sum.map(|v| v / n))
     }
 
-    /// How many placements at C8 to average for the model to put the spot within the
-    /// task's tolerance at [`DONE_CONFIDENCE`] when their average misses the centre by
-    /// `miss` px: the average scatters by the camera mover's repeatability (the brief's, or
-    /// what placements made one after the other without a tilt between them show, when
-    /// that is larger) over the root of their number.
+    /// C8 placements needed for the tolerance at [`DONE_CONFIDENCE`], their average `miss` px off.
     fn placements_needed(&self, miss: f64) -> usize {
         let spread = self
             .placement_px
@@ -531,10 +474,7 @@ impl RelayAgent {
         (needed.ceil() as usize).max(1)
     }
 
-    /// The camera mover's repeatability as C8's placements show it, px along the direction
-    /// it is largest (a camera turned about its mount scatters more one way): from
-    /// consecutive placements at the same tilt (their difference holds two placements'
-    /// errors); 0 before there are any.
+    /// The mover's repeatability from consecutive C8 placements at one tilt, px (largest axis).
     fn placements_spread(&self) -> f64 {
         let differences: Vec<Vector2<f64>> = self
             .placements
@@ -552,9 +492,7 @@ impl RelayAgent {
         scatter.symmetric_eigenvalues().max().max(0.0).sqrt()
     }
 
-    /// The next tilt of a search for a spot not seen at the far station, when its response
-    /// is known: views tiling the plane around where the spot was expected, the nearest
-    /// first, each overlapping its neighbours. `None` once they were all looked at.
+    /// The next tilt searching views around where the far spot was expected; `None` when done.
     fn far_search(&self, size: Vec2) -> Option<Vec2> {
         let gain = self.far.gain()?;
         let mut views = square_rings([0.0; 2], [1.0; 2], 1..=FAR_SEARCH_RINGS);
@@ -565,9 +503,7 @@ impl RelayAgent {
         Some([self.far_start[0] + tilt[0], self.far_start[1] + tilt[1]])
     }
 
-    /// The station's servo made its sightings with stray light merged into the spot (a
-    /// backdrop was just learned): it starts again, its response kept as a guess that the
-    /// next steps confirm or refute.
+    /// Restarts the servo after a backdrop is learned, keeping its response as a guess.
     fn forget_sightings(&mut self) {
         let gain = self.servo().gain();
         match self.phase {
@@ -576,7 +512,6 @@ impl RelayAgent {
         }
     }
 
-    /// The servo of the station the current mirror is steered at.
     fn servo(&self) -> &Servo {
         match self.phase {
             Phase::Near => &self.near,
@@ -592,14 +527,12 @@ impl RelayAgent {
         self.near = self.new_near_servo();
     }
 
-    /// Tilts the current mirror to the command `target` (vertical, horizontal), within
-    /// bounds.
+    /// Tilts the current mirror towards the command `target` (vertical, horizontal), within bounds.
     fn tilt_to(&mut self, target: Vec2) -> RelayAction {
         self.act(self.tilt_towards(target).0)
     }
 
-    /// The tilt of [`Self::tilt_to`] (at most the longest allowed per axis), and whether
-    /// it gets the command there.
+    /// The tilt of [`Self::tilt_to`], at most the longest allowed per axis, and whether it arrives.
     fn tilt_towards(&self, target: Vec2) -> (RelayAction, bool) {
         let step = f64::from(self.limits.max_step);
         let bound = f64::from(self.limits.max_cumulative);

@@ -1,10 +1,5 @@
-//! Driving a spot to a target with a two-axis relative actuator: a trust-region servo over
-//! the bench model of the station's response (`bench::Response`), started from a response
-//! given beforehand (believed to within [`GAIN_PRIOR_SHARE`]) or from two probes. Each
-//! sighting is weighed by its centre's scatter and joins the model when the chi-square
-//! test of its innovation believes it; a model not yet confirmed by a step that the next
-//! sighting refutes, or whose step loses the spot or does no good, is dropped and probed
-//! again. docs/vision.md ("Guessed responses") gives the rules for probes and steps.
+//! A trust-region servo driving a spot to a target with a two-axis relative actuator, over the
+//! bench model of the station's response. See docs/vision.md ("Relay", guessed responses).
 
 use super::bench::{Point, Response, STILL, isotropic};
 use super::model::{Affine, Vec2, column_norm, distance};
@@ -20,7 +15,6 @@ pub struct Spot {
     pub at: Vec2,
     /// Whole: not cut by the sensor's edge.
     pub whole: bool,
-    /// Its light.
     pub signal: f64,
     /// The standard deviation of its centre per axis, px.
     pub scatter: f64,
@@ -51,8 +45,7 @@ pub struct Servo {
     best: Option<Best>,
     /// The bench model of the response, from the first sighting on.
     model: Option<Response>,
-    /// The response the model started from (given beforehand, its prior at its first
-    /// sighting, or from probes of both axes); `None` while it is not steered by.
+    /// The response the model started from (given, or probed on both axes); `None`: not steered.
     prior: Option<[[f64; 2]; 2]>,
     /// A step confirmed the model's response (or it was given as measured).
     confirmed: bool,
@@ -76,8 +69,7 @@ pub struct Servo {
 }
 
 impl Servo {
-    /// A servo whose probes start at `probe` steps within `bounds`, with a response when
-    /// one is known beforehand (measured, as good as confirmed).
+    /// Probes start at `probe` steps within `bounds`; a `gain` known beforehand is confirmed.
     pub fn new(probe: f64, bounds: Vec2, gain: Option<[[f64; 2]; 2]>) -> Self {
         let probe = probe.clamp(bounds[0], bounds[1]);
         Self {
@@ -98,8 +90,7 @@ impl Servo {
         }
     }
 
-    /// The new servo starting from a guess of the response (another mirror's, say), when
-    /// there is one, used until a sighting refutes it.
+    /// Starts from a guessed response (another mirror's, say), if any, until a sighting refutes it.
     pub fn assume(mut self, gain: Option<[[f64; 2]; 2]>) -> Self {
         if gain.is_some() {
             self.prior = gain;
@@ -125,8 +116,7 @@ impl Servo {
         self.steering().filter(|_| !self.cut)
     }
 
-    /// Drops the response: the model knows nothing but the best sighting, and the next
-    /// commands probe both axes again from the best tilt.
+    /// Drops the response: the model keeps only the best sighting, and both axes are probed again.
     fn drop_gain(&mut self) {
         self.prior = None;
         self.model = self.best.map(|b| model_through(b.tilt, &b.spot, None));
@@ -136,8 +126,7 @@ impl Servo {
         self.pending = Pending::Nothing;
     }
 
-    /// How far a spot is from `target`, as the servo ranks them: a whole spot by its
-    /// distance; a cut one behind every whole one, by how little of it shows.
+    /// A spot's error from `target`: a whole one's distance; a cut one ranks behind any whole one.
     fn error(&self, spot: &Spot, target: Vec2, side: f64) -> f64 {
         if spot.whole {
             distance(spot.at, target)
@@ -147,9 +136,7 @@ impl Servo {
         }
     }
 
-    /// Adds a sighting `s` at `tilt` to the model when its chi-square test believes it (a
-    /// model built on it, with the given response as its prior, when there is none yet);
-    /// whether it was believed.
+    /// Adds sighting `s` at `tilt` to the model (or starts one) unless refuted; whether it did.
     fn learn(&mut self, tilt: Vec2, s: &Spot) -> bool {
         let r = isotropic(s.scatter);
         let Some(model) = &mut self.model else {
@@ -163,8 +150,7 @@ impl Servo {
         true
     }
 
-    /// The probes of both axes showed the response: it becomes the prior of a model
-    /// through the latest sighting `s` at `tilt`.
+    /// Both axes probed: their response becomes the prior of a model through `s` at `tilt`.
     fn probes_done(&mut self, tilt: Vec2, s: &Spot) {
         let Some(mean) = self.model.as_ref().and_then(|m| m.mean(STILL)) else {
             return;
@@ -174,8 +160,7 @@ impl Servo {
         self.confirmed = !self.cut;
     }
 
-    /// Learns from what the last command showed at `tilt` (`seen`: where the spot is, if it
-    /// shows), for `target` on an image whose shorter side is `side`.
+    /// Learns from what the last command showed at `tilt`; `side` is the image's shorter side, px.
     pub fn observe(&mut self, tilt: Vec2, seen: Option<Spot>, target: Vec2, side: f64) {
         self.brightest = seen.map_or(self.brightest, |s| self.brightest.max(s.signal));
         if let (Pending::Probe { sign, flipped, .. }, None) = (&mut self.pending, seen) {
@@ -204,8 +189,7 @@ impl Servo {
         let better =
             seen.is_some_and(|s| self.best.is_none_or(|best| error(&s) < error(&best.spot)));
         if self.pending == Pending::Step && !self.confirmed {
-            // A response on trial: a whole sighting it predicted confirms it; one it did
-            // not, a lost spot or a step that did no good refutes it.
+            // On trial: a believed whole sighting confirms it; a miss, loss or no gain refutes it.
             match seen {
                 Some(s) if believed && s.whole => {
                     self.confirmed = true;
@@ -213,7 +197,6 @@ impl Servo {
                 }
                 Some(_) if believed && better => {}
                 _ => {
-                    // Next probes: a useful share of the image at the refuted response's scale.
                     if let Some(gain) = self.steering() {
                         self.probe = useful_probe(side, column_norm(gain).max(1e-9))
                             .clamp(self.bounds[0], self.bounds[1]);
@@ -236,8 +219,7 @@ impl Servo {
         self.last = seen.map(|_| tilt).or(self.last);
     }
 
-    /// The next tilt: a probe of an axis whose response is not known yet, or a Newton step
-    /// towards `target` from the best tilt; `None` before the spot was ever seen.
+    /// The next tilt (`None` before any sighting): probe an unknown axis or step towards `target`.
     pub fn next(&mut self, target: Vec2) -> Option<Vec2> {
         let best = self.best?;
         let Some(gain) = self.steering() else {
@@ -267,17 +249,12 @@ impl Servo {
         let length = step[0].hypot(step[1]);
         let scale = (self.radius / length.max(1e-9)).min(1.0);
         let proposal = [0, 1].map(|a| best.tilt[a] + step[a] * scale);
-        // The tilt just looked at, to within a step, where the caller found the spot off the
-        // target: the response cannot get it any closer.
+        // Back at the tilt just seen off target: the response cannot get any closer.
         let standing_still = self
             .last
             .is_some_and(|tilt| (0..2).all(|a| (tilt[a] - proposal[a]).abs() < SAME_STEP));
         if (length < self.bounds[0] && !best.spot.whole) || standing_still {
-            // A spot the response says is where it should be, when it is cut or was just seen
-            // off the target: the response is wrong. Probe again from the best tilt, longer
-            // from a cut spot (they show more of it); refuted from the same best tilt again,
-            // not with the probes that gave it twice (they would give it for ever), but the
-            // other way round.
+            // Wrong response: probe again; refuted here before, the other way (lest it loop).
             self.drop_gain();
             if self
                 .refuted_at
@@ -296,15 +273,12 @@ impl Servo {
     }
 }
 
-/// The probe, steps, that moves a spot a useful share of an image whose shorter side is
-/// `side` px at a response of `response` px per step.
+/// The probe, steps, moving a spot a useful share of `side` px at `response` px per step.
 pub fn useful_probe(side: f64, response: f64) -> f64 {
     SERVO_PROBE_VIEW_SHARE * side / response
 }
 
-/// A model through spot `s` seen at `tilt`: about `prior` (its response believed to within
-/// [`GAIN_PRIOR_SHARE`]: a mount's response changes across its range, which later steps must
-/// be free to correct), else knowing nothing more.
+/// A model through spot `s` at `tilt`, about `prior` (within [`GAIN_PRIOR_SHARE`]) if given.
 fn model_through(tilt: Vec2, s: &Spot, prior: Option<Affine>) -> Response {
     let mut model = match prior {
         Some(prior) => {
@@ -317,8 +291,7 @@ fn model_through(tilt: Vec2, s: &Spot, prior: Option<Affine>) -> Response {
     model
 }
 
-/// Spot `s` seen at `tilt`, as the bench model takes it: with no dead band (the mount's
-/// tracker takes it off the tilts).
+/// Spot `s` at `tilt` as a bench-model point, with no dead band (the tracker takes it off).
 fn point(tilt: Vec2, s: &Spot) -> Point {
     Point {
         command: tilt,
