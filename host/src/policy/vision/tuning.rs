@@ -1,7 +1,8 @@
 //! Every threshold the vision agent uses, with its unit and reason, module by module. The
 //! detector's own are in `optalign_imaging`'s tuning module.
 
-/// Probability: a sighting beyond this quantile (3.7 sigma in 2-D) is set aside; merged beams fail.
+/// Probability: sightings beyond this innovation quantile (3.7 sigma in 2-D) are set aside, so a
+/// good one is lost once in 1,000 while a merged or foreign beam, tens of sigma off, never passes.
 pub const GATE_CONFIDENCE: f64 = 0.999;
 
 /// Probability of landing within tolerance the model needs to declare done: the usual level.
