@@ -1,9 +1,5 @@
-//! Light that stays put where the camera looks (stray spots, ghosts, a lit mount, and the
-//! background itself), learned from two frames between which the beam moved clear of where
-//! it was, and taken off later frames of the same place so that only what moves is left to
-//! measure. It works on the frames' raw levels: what stays put cancels pixel by pixel,
-//! background included, so no frame's own background fit (each a little different where
-//! spots' tails reach over it) leaves a slope behind.
+//! Light that stays put at a camera place, learned from two frames between which the beam moved
+//! clear of itself and taken off later frames, on raw levels (no background fit leaves a slope).
 
 use optalign_optics::Frame;
 
@@ -23,10 +19,8 @@ pub struct Backdrop {
 }
 
 impl Backdrop {
-    /// The stationary light of two frames of one place between which the beam moved clear
-    /// of itself: cell by cell, the frame with less light there (the beam lies in one of
-    /// them at most, apart from where its two faint tails overlap). `noise` is the larger
-    /// read noise of the two. `None` when the frames differ in size.
+    /// The stationary light of two frames between which the beam moved clear of itself: the
+    /// darker frame, cell by cell. `noise`: the larger read noise; `None` when the sizes differ.
     pub fn from_pair(a: &Frame, b: &Frame, noise: f64) -> Option<Self> {
         if a.width() != b.width() || a.height() != b.height() || a.full_scale() != b.full_scale() {
             return None;
@@ -61,9 +55,7 @@ impl Backdrop {
         self.levels.iter().map(|v| v - background).collect()
     }
 
-    /// `frame` (made ready as `picture`) without this light (`None` when the sizes differ),
-    /// less the offset of its typical cell (the darker cells chosen carry a slight bias):
-    /// its noise is the two frames' combined, its saturated pixels stay saturated.
+    /// `frame` (ready as `picture`) less this light and its typical cell's offset, if sizes match.
     pub fn removed_from(&self, frame: &Frame, picture: &Picture) -> Option<Picture> {
         if frame.width() as usize != self.width || frame.height() as usize != self.height {
             return None;
@@ -77,7 +69,6 @@ impl Backdrop {
             .collect();
         let stationary = NoiseMap::uniform(self.width, self.height, self.noise);
         let noise_map = picture.noise_map().of_difference(&stationary, 1.0);
-        // Less the median of its cells' means.
         let cells = CellSums::new(&light, self.width, self.height, BACKDROP_CELL, f64_sum);
         if let Some(offset) = median(cells.means().collect()) {
             light.iter_mut().for_each(|v| *v -= offset as f32);

@@ -1,14 +1,5 @@
-//! Finding beams in a [`Picture`]: bright regions on a block grid, regions of one beam
-//! joined (the lobes of a TEM01 mode, the stripes of a beam crossed by dark fringes), and
-//! for each beam its intensity centroid and second moments measured the ISO 11146 way: in a
-//! window of 2.5 second-moment radii around the centroid, iterated until it settles, over
-//! the pixels nearer this beam than any other. Each beam says how sure its centre is (the
-//! read noise propagated through the centroid, and the scatter of centroids of interleaved
-//! samples of its light, which shows texture and speckle), whether the border cuts it,
-//! whether it is saturated, and whether it is a compact spot or a speckle cloud; a beam cut
-//! by the border also carries a Gaussian fit, whose centre holds for a Gaussian-like beam.
-//! [`find_faint_beams`] looks for faint broad beams on wider averages, against the noise
-//! the pixels carry place by place, and measures them on the averaged blocks.
+//! Finding beams in a [`Picture`]: bright regions on a block grid, joined into beams, each
+//! measured the ISO 11146 way (centroid, second moments) with its centre's uncertainty and flags.
 
 use super::cells::{CellSums, around};
 use super::core::pixel_range;
@@ -25,19 +16,13 @@ use super::tuning::{
 /// A beam found in a picture.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
 pub struct Beam {
-    /// Intensity centroid (first moment), px (x right, y down). Pulled inwards when the
-    /// border cuts the beam.
+    /// Intensity centroid, px (x right, y down); pulled inwards when the border cuts the beam.
     pub centre: [f64; 2],
     /// Standard uncertainty of the centre, px: the root of the trace of `covariance`.
     pub uncertainty: f64,
-    /// Covariance of the centre, px² (`[[xx, xy], [xy, yy]]`): every pixel's read noise and
-    /// the background's misfit, propagated through the centroid, widened by what the
-    /// scatter of interleaved samples of the beam's light shows beyond them (texture,
-    /// fringes, speckle finer than about a quarter of the beam's radius). Structure on the
-    /// beam's own scale is shape, which no single frame tells from a texture.
+    /// Covariance of the centre, px²: read noise and background misfit, widened by texture.
     pub covariance: [[f64; 2]; 2],
-    /// Second-moment radii along the principal axes (major, minor), px: the 1/e² radii
-    /// of a Gaussian with the same moments.
+    /// Second-moment (1/e²) radii along the principal axes (major, minor), px.
     pub radii: [f64; 2],
     /// Direction of the major axis, degrees from +x towards +y.
     pub angle_deg: f64,
@@ -65,8 +50,7 @@ impl Beam {
         (self.radii[0] * self.radii[1]).sqrt()
     }
 
-    /// What a user should know about the beam before trusting its centre (empty: nothing):
-    /// saturated, cut by the border, speckle, lobes joined.
+    /// What a user should know before trusting the centre (empty: nothing).
     pub fn notes(&self) -> String {
         let cut = || {
             let fit = self.fit.map_or(String::new(), |f| {
@@ -106,33 +90,24 @@ impl Beam {
 /// When separate bright regions are parts of one beam.
 #[derive(Clone, Copy, Debug, PartialEq)]
 enum Joining {
-    /// Cores near each other and a dark valley between them: in a frame, beams side by
-    /// side stay apart however their tails overlap.
+    /// Cores near and a dark valley between: in a frame, beams whose tails overlap stay apart.
     AcrossDarkValley,
-    /// Cores near each other: on one side of a frames' difference, which holds what one
-    /// moved beam brought or left (a crescent that etalon texture breaks into pieces with
-    /// no dark line between them).
+    /// Cores near: on a side of a difference, texture breaks a moved beam into touching pieces.
     Near,
 }
 
-/// Beams in `picture`, strongest first, found on blocks averaged with their eight
-/// neighbours (12 px across: compact beams stay apart).
+/// Beams in `picture`, strongest first, on blocks averaged 3 x 3 (12 px: compact beams apart).
 pub fn find_beams(picture: &Picture) -> Vec<Beam> {
     beams_in(picture, 1, Joining::AcrossDarkValley)
 }
 
-/// What one side of a frames' difference holds (`picture` the light that came, or that
-/// went), strongest first: as [`find_beams`], with regions joined by nearness alone.
+/// As [`find_beams`] for one side of a frames' difference: regions joined by nearness alone.
 pub fn find_changed(picture: &Picture) -> Vec<Beam> {
     beams_in(picture, 1, Joining::Near)
 }
 
-/// As [`find_changed`], and where that finds nothing, faint broad beams of up to about
-/// `radius` px: found on the narrowest of wider and wider block averages (twice as wide each
-/// time, up to about `radius` across) that shows any, against the noise the picture's pixels
-/// carry place by place (its noise map). A faint broad beam stands out of heavy noise only on
-/// an average of about its own size (it takes in more of its light and less of the noise per
-/// block); finer ones keep nearby beams apart.
+/// As [`find_changed`], else on averages twice as wide each time up to about `radius` px (against
+/// the noise map): a faint broad beam shows only on averages of about its size.
 pub fn find_faint_beams(picture: &Picture, radius: f64) -> Vec<Beam> {
     let widest = (radius / (2 * BLOCK) as f64).round().max(2.0) as usize;
     let mut reach = 1;
@@ -145,8 +120,6 @@ pub fn find_faint_beams(picture: &Picture, radius: f64) -> Vec<Beam> {
     }
 }
 
-/// Beams in `picture` found on blocks averaged with those within `reach` of them, regions
-/// joined into beams by `joining`.
 fn beams_in(picture: &Picture, reach: usize, joining: Joining) -> Vec<Beam> {
     let grid = Grid::new(picture, reach);
     let groups = join_regions(&grid, &grid.regions(), joining);
@@ -164,17 +137,14 @@ fn beams_in(picture: &Picture, reach: usize, joining: Joining) -> Vec<Beam> {
 
 /// A picture reduced to block means.
 struct Grid<'a> {
-    /// The picture the blocks are of.
     picture: &'a Picture,
     bw: usize,
     bh: usize,
     means: Vec<f32>,
     /// Block means averaged with their neighbours: what regions are found on.
     smooth: Vec<f32>,
-    /// How far one pixel of each block scatters.
     pixel_noise: Vec<f32>,
-    /// How far each smoothed block scatters: its pixels' noise, and the background's own
-    /// misfit (structure no background surface follows is not a beam).
+    /// Noise of each smoothed block: its pixels' noise and the background's misfit.
     smooth_noise: Vec<f32>,
     /// Blocks averaged either side of a block in `smooth`.
     reach: usize,
@@ -190,7 +160,6 @@ struct Region {
 }
 
 impl<'a> Grid<'a> {
-    /// The picture's blocks, each averaged with the blocks within `reach` of it.
     fn new(picture: &'a Picture, reach: usize) -> Self {
         let (width, height) = (picture.width(), picture.height());
         let blocks = CellSums::new(picture.light(), width, height, BLOCK, |run: &[f32]| {
@@ -198,11 +167,7 @@ impl<'a> Grid<'a> {
         });
         let (bw, bh) = (blocks.columns, blocks.rows);
         let means: Vec<f32> = blocks.means().map(|m| m as f32).collect();
-        // On the finest average a beam is measured on its pixels' moments in a window
-        // that starts from its region; the frame's one read noise keeps those regions as
-        // they were (lower thresholds in the dark parts of heavy clipped noise would widen
-        // them by noisy rims, and the window with them). Broad averages, whose beams are
-        // measured on the averaged blocks, take the noise the pixels carry place by place.
+        // Finest: one read noise keeps regions (the pixel window's start) tight; wider: noise map.
         let map = picture.noise_map();
         let pixel_noise: Vec<f32> = if reach > 1 {
             (0..bw * bh)
@@ -211,8 +176,6 @@ impl<'a> Grid<'a> {
         } else {
             vec![picture.noise() as f32; bw * bh]
         };
-        // A smoothed block averages (2 reach + 1)² blocks of BLOCK² pixels (fewer at the
-        // border).
         let side = ((2 * reach + 1) * BLOCK) as f32;
         let misfit = picture.background_misfit() as f32;
         let (smooth, smooth_noise): (Vec<f32>, Vec<f32>) = if reach == 1 {
@@ -226,7 +189,6 @@ impl<'a> Grid<'a> {
                 })
                 .unzip()
         } else {
-            // Wide averages by running sums: their cost does not grow with their width.
             let variances: Vec<f32> = pixel_noise.iter().map(|v| v * v).collect();
             let smooth_noise = box_means(&variances, bw, bh, reach)
                 .into_iter()
@@ -258,9 +220,8 @@ impl<'a> Grid<'a> {
         })
     }
 
-    /// Grows `blocks` breadth-first over the blocks labelled `free` that `joins` accepts,
-    /// each taking the label of the block it was reached from: the blocks reached, in order.
-    /// (A block's own label is never `free`: its 3 x 3 neighbourhood may include it.)
+    /// Grows `blocks` breadth-first over `free` blocks `joins` accepts, each taking its parent's
+    /// label (so seeds must not be `free`); the blocks reached, in order.
     fn grow<L: Copy + PartialEq>(
         &self,
         label: &mut [L],
@@ -281,7 +242,6 @@ impl<'a> Grid<'a> {
         blocks
     }
 
-    /// Whether smoothed block `b` stands out of its noise: light there.
     fn bright(&self, b: usize) -> bool {
         self.smooth[b] > THRESHOLD_NOISES as f32 * self.smooth_noise[b]
     }
@@ -303,7 +263,6 @@ impl<'a> Grid<'a> {
                 .iter()
                 .map(|&b| f64::from(self.means[b]) * (BLOCK * BLOCK) as f64)
                 .sum();
-            // The noise summed over the region's pixels.
             let noise = blocks
                 .iter()
                 .map(|&b| f64::from(self.pixel_noise[b]).powi(2) * (BLOCK * BLOCK) as f64)
@@ -317,11 +276,7 @@ impl<'a> Grid<'a> {
         regions
     }
 
-    /// A region split at its cores: two beams whose faint tails touch make one region with
-    /// two cores. Each core (a connected set of blocks above [`CORE_SHARE`] of the region's
-    /// peak, of at least two blocks, whose own peak stands [`CORE_PROMINENCE_NOISES`] above
-    /// that level) takes the region's blocks nearest to it; lobes or
-    /// stripes of one beam split here are joined again by [`join_regions`].
+    /// Splits a region at its prominent cores (beams whose tails touch); each takes its nearest.
     fn split(&self, blocks: Vec<usize>) -> Vec<Vec<usize>> {
         const OUTSIDE: u32 = u32::MAX;
         const UNCLAIMED: u32 = u32::MAX - 1;
@@ -379,8 +334,7 @@ impl<'a> Grid<'a> {
         }
     }
 
-    /// Every block's beam: the nearest group's (by steps on the block grid), from a
-    /// breadth-first spread out of every group's own blocks.
+    /// Every block's beam: the nearest group's, by steps on the block grid.
     fn partition(&self, groups: &[(Vec<usize>, usize)]) -> Vec<u32> {
         let mut owner = vec![u32::MAX; self.bw * self.bh];
         let mut seeds: Vec<usize> = Vec::new();
@@ -393,7 +347,6 @@ impl<'a> Grid<'a> {
     }
 }
 
-/// The brightest of `blocks` in `values` (a grid's, row-major).
 fn brightest(values: &[f32], blocks: &[usize]) -> f32 {
     blocks.iter().map(|&b| values[b]).fold(f32::MIN, f32::max)
 }
@@ -406,11 +359,8 @@ fn brightest_block(values: &[f32], blocks: &[usize]) -> Option<usize> {
         .max_by(|&a, &b| values[a].total_cmp(&values[b]))
 }
 
-/// The mean of `values` (a `bw` x `bh` grid, row-major) over the cells within `reach` of
-/// each cell (fewer at the border): running sums along the rows, then along the columns
-/// (the window's cells are the product of its row and column spans).
+/// The mean of `values` (a `bw` x `bh` grid) over the cells within `reach` of each (running sums).
 fn box_means(values: &[f32], bw: usize, bh: usize, reach: usize) -> Vec<f32> {
-    // Means along a line of `len` cells `stride` apart, starting at `start`.
     let line = |source: &[f32], out: &mut [f32], start: usize, len: usize, stride: usize| {
         let mut prefix = Vec::with_capacity(len + 1);
         prefix.push(0f64);
@@ -433,9 +383,7 @@ fn box_means(values: &[f32], bw: usize, bh: usize, reach: usize) -> Vec<f32> {
     out
 }
 
-/// Groups regions that belong to one beam: cores close relative to their distance, peaks
-/// alike, and with [`Joining::AcrossDarkValley`] a dark valley between them. Each group:
-/// its regions' blocks, and how many regions it joins.
+/// Groups regions of one beam by core gap, peaks and `joining`: each group's blocks and parts.
 fn join_regions(grid: &Grid, regions: &[Region], joining: Joining) -> Vec<(Vec<usize>, usize)> {
     let tails: Vec<Option<Tail>> = match joining {
         Joining::AcrossDarkValley => regions.iter().map(|r| Tail::of(grid, r)).collect(),
@@ -479,20 +427,14 @@ fn join_regions(grid: &Grid, regions: &[Region], joining: Joining) -> Vec<(Vec<u
     groups
 }
 
-/// Whether the light on the line between the centres of regions `a` and `b` falls to a
-/// node, darker than two separate beams could make it: two beams side by side add their
-/// light, so between them it is at least the sum of their `tails` (each region taken for a
-/// Gaussian of its own peak and block moments); the lobes of one mode, or the stripes of a
-/// beam crossed by dark fringes, cancel there. Joined when some point of the line is below
-/// [`JOIN_NODE_SHARE`] of that sum, beyond the noise. A saturated region's true peak is
-/// unknown (its tail cannot be predicted): its valley is not judged.
+/// Whether the light between `a` and `b` drops to a node, below [`JOIN_NODE_SHARE`] of their
+/// `tails`' sum; true when a tail is unknown (a saturated region's peak is unknown).
 fn dark_between(grid: &Grid, a: &Region, b: &Region, tails: [&Option<Tail>; 2]) -> bool {
     let [Some(tail_a), Some(tail_b)] = tails else {
         return true;
     };
     let length = (b.centre[0] - a.centre[0]).hypot(b.centre[1] - a.centre[1]);
     let samples = (2.0 * length / BLOCK as f64).ceil().max(1.0) as usize;
-    // The block holding position `v`, px, along an axis of `side` blocks.
     let block = |v: f64, side: usize| (v.max(0.0) as usize / BLOCK).min(side - 1);
     (0..=samples).any(|k| {
         let t = k as f64 / samples as f64;
@@ -504,8 +446,7 @@ fn dark_between(grid: &Grid, a: &Region, b: &Region, tails: [&Option<Tail>; 2]) 
     })
 }
 
-/// The centroid of blocks' light (their means, negative ones as none) and its second
-/// moments about it (xx, yy, xy), px²; `None` when they hold no light.
+/// The centroid of blocks' light (negative means as none) and its moments (xx, yy, xy), px².
 fn block_moments(grid: &Grid, blocks: &[usize]) -> Option<([f64; 2], [f64; 3])> {
     let light = |b: usize| f64::from(grid.means[b].max(0.0));
     let [s, sx, sy] = grid.weighted(blocks, light);
@@ -521,8 +462,7 @@ fn block_moments(grid: &Grid, blocks: &[usize]) -> Option<([f64; 2], [f64; 3])> 
     Some((centre, moments.map(|m| m / s)))
 }
 
-/// A region's light taken for a Gaussian spot: its brightest block's level and the
-/// second moments of its blocks' light.
+/// A region's light taken for a Gaussian of its brightest block's level and its blocks' moments.
 struct Tail {
     peak: f64,
     centre: [f64; 2],
@@ -546,7 +486,6 @@ impl Tail {
         })
     }
 
-    /// The spot's light at `point`.
     fn at(&self, point: [f64; 2]) -> f64 {
         let d = [point[0] - self.centre[0], point[1] - self.centre[1]];
         let m = &self.inverse;
@@ -576,7 +515,6 @@ struct Moments {
     sxx: f64,
     syy: f64,
     sxy: f64,
-    /// Pixels summed.
     n: f64,
     /// Σ dx², Σ dy², Σ dx dy over the pixels summed (offsets from the window's centre).
     gxx: f64,
@@ -584,8 +522,7 @@ struct Moments {
     gxy: f64,
 }
 
-/// Where one beam is measured: the pixels beam `id` owns (by `owner`, on `grid`'s blocks)
-/// in the window `centre ± half`.
+/// The pixels beam `id` owns (by `owner`, on `grid`'s blocks) in the window `centre ± half`.
 struct Window<'a> {
     grid: &'a Grid<'a>,
     owner: &'a [u32],
@@ -594,8 +531,7 @@ struct Window<'a> {
     half: [f64; 2],
 }
 
-/// The pixels of `window` (above the moment floor), as runs along rows:
-/// `visit(y, x_from, light)` for each, `light` the run's pixels.
+/// The pixels of `window` above the moment floor, as row runs: `visit(y, x_from, light)`.
 fn owned_runs(window: &Window, mut visit: impl FnMut(usize, usize, &[f32])) {
     let (picture, grid) = (window.grid.picture, window.grid);
     let (w, light) = (picture.width(), picture.light());
@@ -656,18 +592,11 @@ fn window_moments(window: &Window) -> Moments {
     m
 }
 
-/// How surely the centroid of beam `id` in the window `centre ± half` is known, from the
-/// light itself: its pixels split into nine interleaved classes of square cells `cell` px
-/// wide (a 3 x 3 pattern on the pixel grid), each class's own centroid, and their scatter.
-/// Each class samples the whole beam evenly (cells far finer than the beam: shape cancels),
-/// so the classes' centroids differ only by what is random at scales finer than a cell:
-/// read noise, and the texture, fringes or speckle the beam carries. The covariance of
-/// their mean, px²; `None` when a class holds no light.
+/// The centroid's covariance, px², from the scatter of nine interleaved classes of `cell` px
+/// cells, fine enough that the beam's shape cancels; `None` when a class holds no light.
 fn split_covariance(window: &Window, cell: usize) -> Option<[[f64; 2]; 2]> {
     let centre = window.centre;
-    // Cells on the pixel grid, whole pixels wide: every class holds the same share of
-    // pixels in every stretch of three cells (cells of fractional width would give one
-    // class a pixel more here and there, which on a beam's steep flanks is shape).
+    // Whole-pixel cells: fractional ones would give a class a pixel more here and there (shape).
     let class_of = |pixel: usize| (pixel / cell) % 3;
     let mut sums = [[0f64; 3]; SPLIT_CLASSES];
     owned_runs(window, |y, from, light| {
@@ -698,7 +627,6 @@ fn split_covariance(window: &Window, cell: usize) -> Option<[[f64; 2]; 2]> {
     Some([[co(0, 0), co(0, 1)], [co(0, 1), co(1, 1)]])
 }
 
-/// Measures beam `id` (its region blocks `blocks`, `parts` regions).
 fn measure(grid: &Grid, owner: &[u32], id: usize, blocks: &[usize], parts: usize) -> Option<Beam> {
     let picture = grid.picture;
     let footprint = if grid.reach > 1 {
@@ -706,17 +634,13 @@ fn measure(grid: &Grid, owner: &[u32], id: usize, blocks: &[usize], parts: usize
     } else {
         window_footprint(grid, owner, id as u32, blocks)?
     };
-    // cov(cx, cy) = σ² Σ (x - cx)(y - cy) / S², σ the read noise and the background's
-    // misfit together (each pixel's light is known no better than its background).
+    // cov(cx, cy) = σ² Σ (x - cx)(y - cy) / S², σ the read noise and background misfit together.
     let (signal, split) = (footprint.signal, footprint.split);
     let gain = (picture.noise().hypot(picture.background_misfit()) / signal).powi(2);
     let read = footprint.spread.map(|row| row.map(|g| gain * g));
     let covariance = split.map_or(read, |split| with_texture(read, split));
     let peak = f64::from(brightest(&grid.means, blocks));
-    // Cut by the border: it is still bright there (a faint rim touching it moves the
-    // centroid by nothing worth a flag). Smoothed blocks on both sides of the ratio: the
-    // brightest raw block of a speckled beam is one bright grain, far above the beam's
-    // level, which would make a beam centred beyond the border look whole.
+    // Judged on smoothed blocks: a speckled beam's brightest raw block is one grain.
     let smooth_peak = f64::from(brightest(&grid.smooth, blocks));
     let at_border = blocks
         .iter()
@@ -751,12 +675,7 @@ fn measure(grid: &Grid, owner: &[u32], id: usize, blocks: &[usize], parts: usize
     Some(Beam { fit, ..beam })
 }
 
-/// The footprint of a beam found on a broad average (a faint one: finer averages showed
-/// nothing), whose pixels' moments over a window would be mostly noise (they take in
-/// every pixel's noise times its squared distance): a round Gaussian fitted to the
-/// averaged blocks of its region (all stand out of their noise), its radius freed of the
-/// average's own width (a box `L` wide adds `L²/12` to a spot's variance along each axis;
-/// the box keeps its light). `None` when they do not fall off like a spot.
+/// A faint beam's footprint from its averaged blocks (its pixels' moments would be mostly noise).
 fn faint_footprint(grid: &Grid, blocks: &[usize]) -> Option<Footprint> {
     let [s, sx, sy] = grid.weighted(blocks, |b| f64::from(grid.smooth[b]));
     let width = ((2 * grid.reach + 1) * BLOCK) as f64;
@@ -765,13 +684,13 @@ fn faint_footprint(grid: &Grid, blocks: &[usize]) -> Option<Footprint> {
         fitter.add(grid.centre_of(b), f64::from(grid.smooth[b]));
     }
     let fit = fitter.finish(0.0)?;
+    // A box `L` wide adds `L²/12` to each axis's variance, `L²/3` to the squared 1/e² radius.
     let radius = (fit.radius.powi(2) - width * width / 3.0)
         .max(0.0)
         .sqrt()
         .max(BLOCK as f64);
     let half = MOMENT_WINDOW_RADII * radius;
-    // A square window of side 2 half: (2 half)² pixels, each axis's Σ d² a third of half²
-    // per pixel.
+    // A square window of side 2 half: each axis's Σ d² is half²/3 per pixel.
     let axis = (2.0 * half).powi(2) * half * half / 3.0;
     Some(Footprint {
         centre: fit.centre,
@@ -791,20 +710,15 @@ struct Footprint {
     /// Direction of the major axis, radians from +x towards +y.
     angle: f64,
     signal: f64,
-    /// Σ (x - cx)², Σ (x - cx)(y - cy), Σ (y - cy)² over the window's pixels, for the
-    /// centre's covariance.
+    /// Σ dx², Σ dx dy, Σ dy² over the window's pixels, for the centre's covariance.
     spread: [[f64; 2]; 2],
-    /// The centre's covariance from the scatter of interleaved samples of its light
-    /// ([`split_covariance`]), px², where it could be measured.
+    /// The centre's covariance from [`split_covariance`], px², where measured.
     split: Option<[[f64; 2]; 2]>,
 }
 
-/// The footprint of beam `id` (its region blocks `blocks`) from its pixels' moments in a
-/// window of [`MOMENT_WINDOW_RADII`] second-moment radii, iterated until it settles.
+/// The footprint of beam `id` from its pixels' moments in a window iterated until it settles.
 fn window_footprint(grid: &Grid, owner: &[u32], id: u32, blocks: &[usize]) -> Option<Footprint> {
-    // Start from the blocks' own moments.
     let (mut centre, [vxx, vyy, _]) = block_moments(grid, blocks)?;
-    // Half the window's side along an axis where the light's variance is `v`.
     let half_for = |v: f64| MOMENT_WINDOW_RADII * (2.0 * v.sqrt()).max(BLOCK as f64);
     let mut half = [vxx, vyy].map(half_for);
     let window = |centre, half| Window {
@@ -814,8 +728,6 @@ fn window_footprint(grid: &Grid, owner: &[u32], id: u32, blocks: &[usize]) -> Op
         centre,
         half,
     };
-    // The moments of the window `centre ± half`, the offset of its light's centroid from
-    // `centre` and the variances about that centroid; `None` when it holds no light.
     let moments = |centre: [f64; 2], half: [f64; 2]| {
         let m = window_moments(&window(centre, half));
         if m.s <= 0.0 {
@@ -834,18 +746,14 @@ fn window_footprint(grid: &Grid, owner: &[u32], id: u32, blocks: &[usize]) -> Op
             break;
         }
     }
-    // Moments about the final centre.
     let (m, mean, [cxx, cyy]) = moments(centre, half)?;
     let centre = [centre[0] + mean[0], centre[1] + mean[1]];
     let cxy = m.sxy / m.s - mean[0] * mean[1];
     let gxy = m.gxy - m.n * mean[0] * mean[1];
-    // Light only adds: a spot spreads along every direction. Moments that do not (a
-    // variance of 0 or less along some direction) are those of noise and background
-    // residue summed with both signs, not of a beam.
+    // Light only adds: without positive variance in every direction it is noise, not a beam.
     if cxx <= 0.0 || cyy <= 0.0 || cxx * cyy <= cxy * cxy {
         return None;
     }
-    // The principal axes: the covariance's eigenvalues, and the major axis's direction.
     let (mid, diff) = ((cxx + cyy) / 2.0, ((cxx - cyy) / 2.0).hypot(cxy));
     let (major, minor) = (mid + diff, (mid - diff).max(0.0));
     let angle = 0.5 * (2.0 * cxy).atan2(cxx - cyy);
@@ -866,9 +774,7 @@ fn window_footprint(grid: &Grid, owner: &[u32], id: u32, blocks: &[usize]) -> Op
     })
 }
 
-/// The read-noise covariance `read` of a centre, widened by what the scatter of its
-/// interleaved samples (`split`, which holds the read noise too) shows beyond it: the
-/// texture, fringes or speckle on the beam. The excess is kept positive semi-definite.
+/// `read` widened by the excess of the samples' covariance `split` (kept positive semi-definite).
 fn with_texture(read: [[f64; 2]; 2], split: [[f64; 2]; 2]) -> [[f64; 2]; 2] {
     let xx = (split[0][0] - read[0][0]).max(0.0);
     let yy = (split[1][1] - read[1][1]).max(0.0);
@@ -880,15 +786,13 @@ fn with_texture(read: [[f64; 2]; 2], split: [[f64; 2]; 2]) -> [[f64; 2]; 2] {
     ]
 }
 
-/// The row-major pixel indices of a block of `grid`'s picture.
 fn block_pixels(block: usize, grid: &Grid) -> impl Iterator<Item = usize> {
     let (w, h) = (grid.picture.width(), grid.picture.height());
     let (x0, y0) = ((block % grid.bw) * BLOCK, (block / grid.bw) * BLOCK);
     (y0..(y0 + BLOCK).min(h)).flat_map(move |y| (x0..(x0 + BLOCK).min(w)).map(move |x| y * w + x))
 }
 
-/// Mean absolute difference of horizontal neighbours beyond what the noise gives, over the
-/// mean light, on the beam's bright blocks: small for a smooth spot, large for speckle.
+/// Mean horizontal neighbour difference beyond the noise, over the mean light, on bright blocks.
 fn roughness(grid: &Grid, blocks: &[usize], peak: f64) -> f64 {
     let picture = grid.picture;
     let (w, light) = (picture.width(), picture.light());
@@ -912,8 +816,7 @@ fn roughness(grid: &Grid, blocks: &[usize], peak: f64) -> f64 {
     ((differences / n - expected).max(0.0)) / (total / n)
 }
 
-/// A Gaussian fitted to the beam's unsaturated block means (sixteen pixels average the
-/// noise down fourfold; a beam varies little across a block).
+/// A Gaussian fitted to the unsaturated block means (16 pixels each: a fourth of the noise).
 fn fit_gaussian(grid: &Grid, blocks: &[usize], beam: &Beam) -> Option<GaussianFit> {
     let block_noise = grid.picture.noise() / BLOCK as f64;
     let floor = (FIT_FLOOR_NOISES * block_noise).max(FIT_FLOOR_SHARE * beam.peak);

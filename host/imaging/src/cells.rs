@@ -1,9 +1,6 @@
-//! Sums over a grid of square cells in one pass over an image's pixels, for a background fit,
-//! a noise map, the beam finder's blocks and the sides of a frames' difference; and the
-//! cells around a cell of such a grid.
+//! Sums over a grid of square cells in one pass over an image, and a cell's neighbours.
 
-/// The sums (of type `S`) and pixel counts of an image's values over square cells,
-/// row-major.
+/// Sums (of type `S`) and pixel counts of an image's values over square cells, row-major.
 pub(crate) struct CellSums<S> {
     pub columns: usize,
     pub rows: usize,
@@ -12,10 +9,7 @@ pub(crate) struct CellSums<S> {
 }
 
 impl<S: Clone + Default + std::ops::AddAssign> CellSums<S> {
-    /// Sums `values` (row-major, `width` wide, `height` high) over cells of side `cell`
-    /// (the last row and column of cells may be narrower), each cell's run of a row
-    /// summed by `run_sum` ([`f64_sum`], or faster in a narrower type) and added to the
-    /// cell's sum, which starts at `S::default()`.
+    /// Sums `values` (`width` wide) over cells of side `cell`, each row's run by `run_sum`.
     pub(crate) fn new<T>(
         values: &[T],
         width: usize,
@@ -52,13 +46,11 @@ impl CellSums<f64> {
     }
 }
 
-/// The sum of `run`, each value taken in f64.
 pub(crate) fn f64_sum<T: Copy + Into<f64>>(run: &[T]) -> f64 {
     run.iter().map(|&v| v.into()).sum::<f64>()
 }
 
-/// The cells within `reach` of cell `i` (itself included) of a `w` x `h` grid, row-major
-/// indices, row by row.
+/// The cells within `reach` of cell `i` (itself included) of a `w` x `h` grid, row by row.
 pub(crate) fn around(i: usize, reach: usize, w: usize, h: usize) -> impl Iterator<Item = usize> {
     let (x, y) = (i % w, i / w);
     (y.saturating_sub(reach)..(y + reach + 1).min(h)).flat_map(move |ny| {

@@ -1,14 +1,5 @@
-//! What changed between two pictures of the same camera: the signed difference, compared
-//! on one background, with the room's light that rose or fell (a plane) and the laser's
-//! power drift (the gain that best maps the earlier picture's steady light onto the later
-//! one) taken out first, saturated pixels ignored (they show nothing), then searched for
-//! beams both ways. Everything that did not move cancels; a moved beam shows where it
-//! appeared and where it vanished. When the whole stationary
-//! scene shifted between the frames (pointing jitter of a beam that carries its artefacts
-//! with it), [`registered_changes`] moves the earlier picture by that shift first, so the
-//! scene's edges cancel too instead of leaving residue as bright as a faint beam.
-//! [`registered_changes_sized`] looks for a faint broad beam where the finest average
-//! shows nothing.
+//! What changed between two pictures of one camera: their difference on one background, less the
+//! room's light (a plane) and the laser's drift (a gain), searched for beams both ways.
 
 use super::beams::{Beam, find_changed, find_faint_beams};
 use super::cells::{CellSums, around, f64_sum};
@@ -34,17 +25,13 @@ pub fn changes(before: &Picture, after: &Picture) -> Changes {
     registered_changes(before, after, [0.0, 0.0])
 }
 
-/// The changes from `before` to `after` when the stationary scene moved by `shift`, px
-/// (x right, y down), between them: `before` is resampled onto `after`'s scene first.
-/// Where light appeared is in `after`'s coordinates, where it vanished in `before`'s.
-/// Empty when the sizes differ.
+/// The changes when the stationary scene moved by `shift`, px (x right, y down): `before` is
+/// resampled onto `after` first; appeared in `after`'s coordinates, vanished in `before`'s.
 pub fn registered_changes(before: &Picture, after: &Picture, shift: [f64; 2]) -> Changes {
     changes_found(before, after, shift, None)
 }
 
-/// [`registered_changes`] of a beam of about `radius` px: on a side of the difference
-/// where the finest average shows nothing, a faint broad beam is looked for on wider ones
-/// (see `find_faint_beams`), once the difference's own level is taken out.
+/// [`registered_changes`] for a beam of about `radius` px, looked for on wider averages too.
 pub fn registered_changes_sized(
     before: &Picture,
     after: &Picture,
@@ -54,7 +41,6 @@ pub fn registered_changes_sized(
     changes_found(before, after, shift, Some(radius))
 }
 
-/// [`registered_changes_sized`] with `faint` the beam's radius, [`registered_changes`] without.
 fn changes_found(
     before: &Picture,
     after: &Picture,
@@ -68,10 +54,7 @@ fn changes_found(
     let earlier = Shifted::new(before, shift);
     let b = &earlier.light;
     let known = |i: usize| !earlier.unknown[i] && !after.saturated()[i];
-    // Each picture's light is taken above its own background, and two fits of a bright,
-    // structured background may settle a few gray levels apart: the later picture's light
-    // is put on the earlier one's background, and what is then left of the change over
-    // the whole frame (a plane) is the room's light that rose or fell.
+    // Fits of a structured background can differ by gray levels: compare on `before`'s.
     let mut stayed = on_earlier_background(before, after, shift);
     let difference = |stayed: &[f32], g: f32| -> Vec<f32> {
         (0..w * h)
@@ -105,10 +88,7 @@ fn changes_found(
     }
 }
 
-/// `after`'s light on `before`'s background (taken at the scene's `shift`), gray levels:
-/// at every pixel, the light less how much lower `after`'s background lies there. Both
-/// backgrounds are smooth surfaces, so how much lower is evaluated every
-/// [`BACKGROUND_STRIDE`] pixels of each row and interpolated between.
+/// `after`'s light on `before`'s background at `shift`, gray levels (the smooth gap interpolated).
 fn on_earlier_background(before: &Picture, after: &Picture, shift: [f64; 2]) -> Vec<f32> {
     let w = after.width();
     let drop = |x: f64, y: f64| {
@@ -132,15 +112,13 @@ fn on_earlier_background(before: &Picture, after: &Picture, shift: [f64; 2]) -> 
     out
 }
 
-/// A picture's light resampled at a shift (bilinear), with the pixels that carry no
-/// shape: saturated at a source pixel, or brought in from beyond the border.
+/// A picture's light resampled at a shift (bilinear); `unknown`: saturated or off the border.
 struct Shifted {
     light: Vec<f32>,
     unknown: Vec<bool>,
 }
 
 impl Shifted {
-    /// `picture` as it shows when its scene moves by `shift`, px.
     fn new(picture: &Picture, shift: [f64; 2]) -> Self {
         let (w, h) = (picture.width(), picture.height());
         if shift == [0.0, 0.0] {
@@ -149,8 +127,7 @@ impl Shifted {
                 unknown: picture.saturated().to_vec(),
             };
         }
-        // Pixel x of the shifted picture reads source pixels `x - whole` and the one before,
-        // the latter with weight `part`.
+        // Pixel x reads `x - whole` (weight `1 - part`) and the one before (weight `part`).
         let taps = |s: f64| {
             let whole = s.floor();
             let part = (s - whole) as f32;
@@ -184,11 +161,7 @@ impl Shifted {
     }
 }
 
-/// The plane a frames' difference lies on (level at the origin, slopes per pixel along x
-/// and y), fitted to its cells' means: the room's light that rose or fell between the
-/// frames, or two backgrounds where black clips heavy noise, a change spread over the
-/// whole frame that an average as wide as a broad beam would show. Cells holding a moved
-/// beam are left out of the fit as outliers.
+/// The plane (level, x and y slopes per px) of a difference, moved beams' cells rejected.
 fn level_plane(difference: &[f32], w: usize, h: usize) -> [f64; 3] {
     let sums = CellSums::new(difference, w, h, LEVEL_CELL, f64_sum);
     let centre = |i: usize, side: usize| {
@@ -230,9 +203,7 @@ fn level_plane(difference: &[f32], w: usize, h: usize) -> [f64; 3] {
     plane
 }
 
-/// The difference times `sign`, with the blocks (and their neighbours) whose change clearly
-/// has the opposite sign set to zero: a window measuring where light appeared must not sum
-/// the light that vanished nearby.
+/// The difference times `sign`, zeroed near clear changes of the other sign (not to be summed).
 fn one_side(difference: &[f32], w: usize, h: usize, sign: f32, noise: f64) -> Vec<f32> {
     let blocks = CellSums::new(difference, w, h, SIDE_BLOCK, |run: &[f32]| {
         sign * run.iter().sum::<f32>()
@@ -257,9 +228,7 @@ fn one_side(difference: &[f32], w: usize, h: usize, sign: f32, noise: f64) -> Ve
     out
 }
 
-/// The gain of the laser's light from `before` (read noise `before_noise`) to `after`
-/// (whose light is `stayed`, on `before`'s background and room light): the median ratio
-/// over the pixels bright and unsaturated in both; 1 when too few pixels are.
+/// The laser's gain from `before` to `after` (`stayed`): the median ratio of bright pixels, or 1.
 fn steady_gain(before: &Shifted, before_noise: f64, after: &Picture, stayed: &[f32]) -> f64 {
     let floor_b = GAIN_NOISES * before_noise as f32;
     let floor_a = GAIN_NOISES * after.noise() as f32;

@@ -1,13 +1,10 @@
-//! A beam's bright core, the light above a share of the beam's peak around the beam: its
-//! centre (the centroid of that light) and its size. Faint neighbours (a ghost on a bright
-//! beam's halo, a stray spot inside its wide window) lie below that level and pull nothing; a
-//! saturated core's flat top is symmetric, so its centre holds.
+//! A beam's bright core, the light above a share of its peak: its centroid and size. Faint
+//! neighbours lie below that level; a saturated core's flat top is symmetric.
 
 use super::tuning::{CORE_PASSES, CORE_WINDOW_RADII};
 use super::{Beam, Picture};
 
-/// The centroid of `beam`'s light above `share` of its peak, weighted by the light above
-/// that level; `None` when nothing there is above it.
+/// The centroid of `beam`'s light above `share` of its peak, weighted by the excess, if any.
 pub fn core_centre(picture: &Picture, beam: &Beam, share: f64) -> Option<[f64; 2]> {
     let (w, h) = (picture.width(), picture.height());
     let level = (share * beam.peak) as f32;
@@ -33,8 +30,7 @@ pub fn core_centre(picture: &Picture, beam: &Beam, share: f64) -> Option<[f64; 2
     Some(centre)
 }
 
-/// The radius of a disc as large as the area where `beam`, within `reach_radii` of its
-/// radii around `centre`, is brighter than `share` of its peak (or saturated), px.
+/// The radius, px, of a disc as large as where `beam` near `centre` exceeds `share` of its peak.
 pub fn core_radius(
     picture: &Picture,
     centre: [f64; 2],

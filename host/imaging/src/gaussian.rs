@@ -1,8 +1,5 @@
-//! Fitting a round Gaussian spot to the pixels of one bright region: the logarithm of a
-//! Gaussian is a paraboloid, so a weighted linear least-squares fit of
-//! `ln v = a + b·x + c·y + d·(x² + y²)` gives the centre and radius. It works on the
-//! visible part alone, so a spot cut by the image border still yields its true centre,
-//! and its misfit tells a single spot from two merged ones or interference fringes.
+//! Fitting a round Gaussian spot to a bright region: `ln v = a + b·x + c·y + d·(x² + y²)` is
+//! linear, so least squares on the visible part gives centre and radius even for a cut spot.
 
 use super::tuning::MIN_GAUSSIAN_PIXELS;
 use nalgebra::{Matrix4, Vector4};
@@ -16,14 +13,11 @@ pub struct GaussianFit {
     pub radius: f64,
     /// Peak level above the background.
     pub peak: f64,
-    /// RMS difference between the pixels and the fitted spot beyond the read noise, as a
-    /// share of the peak: a few per cent for one clean spot, much more for merged spots or
-    /// fringes.
+    /// RMS misfit beyond the read noise, share of the peak: over a few per cent, not one spot.
     pub misfit: f64,
 }
 
-/// Collects pixels (relative to an origin near the region, in units of `scale` px, which
-/// keeps the normal equations well conditioned) and solves the weighted fit.
+/// Collects pixels (about an origin, in `scale` px units: well conditioned) and solves the fit.
 pub struct GaussianFitter {
     origin: [f64; 2],
     scale: f64,
@@ -46,8 +40,7 @@ impl GaussianFitter {
         }
     }
 
-    /// Adds a pixel at `point` with `value` above the background (must be positive).
-    /// The weight `value²` makes the log-space fit a linear-space fit of the bright part.
+    /// Adds a pixel of positive `value`; the weight `value²` makes the log fit a linear-space one.
     pub fn add(&mut self, point: [f64; 2], value: f64) {
         let [u, v] = [0, 1].map(|a| (point[a] - self.origin[a]) / self.scale);
         let row = Vector4::new(1.0, u, v, u * u + v * v);
@@ -58,9 +51,7 @@ impl GaussianFitter {
         self.count += 1;
     }
 
-    /// The fitted spot for pixels with read noise `noise` (std, gray levels); `None` with
-    /// too few pixels or when the pixels do not fall off like a spot (no negative
-    /// curvature).
+    /// The fitted spot for read noise `noise`, gray levels; `None` if too few pixels or not peaked.
     pub fn finish(&self, noise: f64) -> Option<GaussianFit> {
         if self.count < MIN_GAUSSIAN_PIXELS {
             return None;

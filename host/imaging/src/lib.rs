@@ -1,9 +1,6 @@
-//! Image analysis shared by calibration, bench scoring and the image-only agent: a frame's
-//! light above its background ([`Picture`]), that light without what stays put at a camera
-//! place ([`Backdrop`]), the beams in it ([`find_beams`]), the centre of a beam's bright
-//! core ([`core_centre`], [`core_radius`]), and what changed between two frames
-//! ([`changes()`], [`registered_changes`] when the stationary scene shifted, by as much as a
-//! bright beam's core moved: [`scene_shift`]).
+//! Image analysis for calibration, bench scoring and the image-only agent: a frame's light
+//! ([`Picture`]) less what stays put ([`Backdrop`]), its beams ([`find_beams`]), a beam's core
+//! ([`core_centre`]), and what changed between frames ([`changes()`], [`scene_shift`]).
 
 mod backdrop;
 mod beams;

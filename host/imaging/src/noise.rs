@@ -1,24 +1,15 @@
-//! How far one pixel's value scatters, place by place. Read noise is the same over the
-//! whole sensor, but where the dark level lies within a few noise deviations of black,
-//! black clips it from below: a pixel at the level of black itself scatters by 0.58 of the
-//! noise, one further below by less, and light lifts pixels off black, so on a bright
-//! beam's halo they scatter by the full noise. One number for the whole frame sets a
-//! detection threshold too high in the dark (a dim beam there stays below it) or too low
-//! on the halo. The map holds each cell's scatter, read off the statistics of a clipped
-//! normal distribution at the cell's mean level (means of many pixels, so its own noise
-//! hardly matters).
+//! How far one pixel scatters, place by place: black clips the read noise (to 0.58 of it at black),
+//! so one number would set thresholds too high in the dark or too low on a bright beam's halo.
 
 use super::cells::{CellSums, around, f64_sum};
 use super::tuning::{LEVEL_REACH, NOISE_CELL};
 
-/// The standard normal density and cumulative distribution at `t`.
 fn normal(t: f64) -> (f64, f64) {
     let density = (-0.5 * t * t).exp() / (2.0 * std::f64::consts::PI).sqrt();
     (density, optalign_optics::normal_cdf(t))
 }
 
-/// The mean of `max(0, t + Z)` for a standard normal `Z`: `t Φ(t) + φ(t)`, what a pixel
-/// whose level is `t` noise deviations above black reads on average.
+/// The mean of `max(0, t + Z)`, `Z` standard normal: `t Φ(t) + φ(t)`.
 pub(crate) fn clipped_normal_mean(t: f64) -> f64 {
     let (density, cdf) = normal(t);
     t * cdf + density
@@ -33,8 +24,7 @@ fn clipped_normal_spread(t: f64) -> f64 {
         .sqrt()
 }
 
-/// The level `t` (noise deviations above black) whose clipped mean is `mean`: the mean
-/// grows with the level (its slope is `Φ(t)`), so bisection finds it.
+/// The level `t` whose clipped mean is `mean`, by bisection (the mean grows with `t`).
 fn level_of_clipped_mean(mean: f64) -> f64 {
     let (mut low, mut high) = (-6.0, mean.max(0.0) + 1.0);
     for _ in 0..40 {
@@ -57,7 +47,6 @@ pub struct NoiseMap {
 }
 
 impl NoiseMap {
-    /// The same scatter `noise` everywhere on a `width` x `height` frame.
     pub(crate) fn uniform(width: usize, height: usize, noise: f64) -> Self {
         let (columns, rows) = (width.div_ceil(NOISE_CELL), height.div_ceil(NOISE_CELL));
         Self {
@@ -67,10 +56,7 @@ impl NoiseMap {
         }
     }
 
-    /// The scatter of the pixels of `frame`, whose read noise is `noise` (gray levels) and
-    /// which black clips: per cell, that of a clipped normal distribution at the cell's mean
-    /// level. Below black the values are a few rare pixels, far from any normal
-    /// distribution: the scatter is never taken below that at black itself.
+    /// Per cell, a clipped normal's scatter at the cell's mean level, never below that at black.
     pub(crate) fn clipped(frame: &optalign_optics::Frame, noise: f64) -> Self {
         let (width, height) = (frame.width() as usize, frame.height() as usize);
         let cells = CellSums::new(frame.pixels(), width, height, NOISE_CELL, f64_sum);
@@ -95,7 +81,6 @@ impl NoiseMap {
 
     /// The scatter of pixel (`x`, `y`), gray levels.
     pub fn at(&self, x: usize, y: usize) -> f32 {
-        // The cell holding pixel `v` along an axis of `cells` cells.
         let cell = |v: usize, cells: usize| (v / NOISE_CELL).min(cells - 1);
         self.spread[cell(y, self.rows) * self.columns + cell(x, self.columns)]
     }

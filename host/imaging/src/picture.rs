@@ -1,10 +1,5 @@
-//! A camera frame made ready for measurement: the light above the background at every
-//! pixel, at full precision in gray levels of an 8-bit frame. The background is a plane (or
-//! a quadratic surface where a glow bends across the frame) fitted robustly to cell means,
-//! with its own misfit; the read noise comes from neighbouring-pixel differences, a smear
-//! column is removed, hot pixels are replaced by their neighbours' mean, saturated pixels
-//! are remembered, and a [`NoiseMap`] says how far pixels scatter where black clips the
-//! noise. docs/vision.md ("Seeing beams") gives the rules.
+//! A camera frame made ready for measurement: light above a fitted background in gray levels of an
+//! 8-bit frame, with its noise, saturation and [`NoiseMap`]. Rules: docs/vision.md, "Seeing beams".
 
 use optalign_optics::Frame;
 
@@ -23,14 +18,9 @@ use super::tuning::{
 pub struct Picture {
     width: usize,
     height: usize,
-    /// Light above the background, gray levels, row-major.
     light: Vec<f32>,
-    /// Pixels at the saturation level.
     saturated: Vec<bool>,
-    /// Read noise, gray levels (standard deviation).
     noise: f64,
-    /// How far one pixel's value scatters, place by place (less than the read noise
-    /// where black clips it).
     noise_map: NoiseMap,
     /// The background the light is measured above.
     plane: Plane,
@@ -83,22 +73,22 @@ impl Picture {
         self.height
     }
 
-    /// Light above the background, row-major.
+    /// Light above the background, gray levels, row-major.
     pub fn light(&self) -> &[f32] {
         &self.light
     }
 
-    /// The saturation mask, row-major.
+    /// Pixels at the saturation level, row-major.
     pub fn saturated(&self) -> &[bool] {
         &self.saturated
     }
 
-    /// Read noise, gray levels.
+    /// Read noise, gray levels (standard deviation).
     pub fn noise(&self) -> f64 {
         self.noise
     }
 
-    /// How far one pixel's value scatters, place by place.
+    /// How far one pixel's value scatters, place by place (less where black clips the noise).
     pub fn noise_map(&self) -> &NoiseMap {
         &self.noise_map
     }
@@ -108,20 +98,17 @@ impl Picture {
         self.background_at(self.width as f64 / 2.0, self.height as f64 / 2.0)
     }
 
-    /// The background level the light at pixel position (`x`, `y`) is measured above,
-    /// gray levels.
+    /// The background level under pixel position (`x`, `y`), gray levels.
     pub fn background_at(&self, x: f64, y: f64) -> f64 {
         self.plane.level_at(x, y)
     }
 
-    /// How far the background departs from the surface fitted to it, beyond the noise,
-    /// gray levels (0 where a backdrop or another frame took the background off).
+    /// The background's scatter about its surface beyond the noise, gray levels (0 once taken off).
     pub fn background_misfit(&self) -> f64 {
         self.plane.misfit
     }
 
-    /// This picture with its light replaced by `light` (what is left once stationary light
-    /// is taken off), noise `noise`, scattering as `noise_map` says; saturated pixels stay.
+    /// This picture with `light` (stationary light taken off), `noise` and `noise_map`.
     pub fn with_light(&self, light: Vec<f32>, noise: f64, noise_map: NoiseMap) -> Self {
         Self {
             light,
@@ -136,8 +123,7 @@ impl Picture {
         }
     }
 
-    /// The same measurement on another light image of this picture's size (a frame
-    /// difference): nothing saturated, noise `noise`, scattering as `noise_map` says.
+    /// The same measurement for a frames' difference `light`: nothing saturated.
     pub(crate) fn with_difference(&self, light: Vec<f32>, noise: f64, noise_map: NoiseMap) -> Self {
         Self {
             saturated: vec![false; light.len()],
@@ -155,11 +141,7 @@ impl Picture {
     }
 }
 
-/// The value at which `raw` (full scale `full_scale`) saturates, if any pixel does: its
-/// brightest value when that is the full scale, or when light piles up on it: several
-/// pixels, more than on the next value below that any pixel holds (the flat top of an
-/// unsaturated beam holds fewer pixels than the ring around it; a camera that writes 12-bit
-/// data shifted into 16-bit words leaves the values between its steps empty).
+/// The saturation value, if any: the top value when `full_scale` or piled above the next present.
 fn saturation_value(raw: &[u16], full_scale: u16) -> Option<u16> {
     let top = raw.iter().copied().max()?;
     let plateau = raw.iter().filter(|&&p| p == top).count();
@@ -174,9 +156,7 @@ fn saturation_value(raw: &[u16], full_scale: u16) -> Option<u16> {
 struct Depth {
     /// Gray levels of an 8-bit frame per count.
     level_per_count: f64,
-    /// Counts per histogram bin.
     bin_counts: u16,
-    /// Histogram bins.
     bins: usize,
 }
 
@@ -192,9 +172,7 @@ impl Depth {
     }
 }
 
-/// A smooth background surface over the frame: a plane `a + b u + c v`, or with the
-/// quadratic terms `d u² + e u v + f v²` too, in coordinates `u`, `v` running from -1 to 1
-/// across the frame (so the terms are of one size and the fit well conditioned).
+/// A background `a + b u + c v` (+ `d u² + e u v + f v²`), `u`, `v` from -1 to 1 across the frame.
 #[derive(Clone, Copy, Debug)]
 struct Surface {
     coefficients: [f64; 6],
@@ -212,35 +190,29 @@ impl Surface {
         }
     }
 
-    /// The terms at pixel position (`x`, `y`).
     fn terms_at(&self, x: f64, y: f64) -> [f64; 6] {
         let (u, v) = (x / self.half[0] - 1.0, y / self.half[1] - 1.0);
         [1.0, u, v, u * u, u * v, v * v]
     }
 
-    /// The level at pixel position (`x`, `y`).
     fn at(&self, x: f64, y: f64) -> f64 {
         let t = self.terms_at(x, y);
         (0..self.terms).map(|k| self.coefficients[k] * t[k]).sum()
     }
 }
 
-/// The background surface and the read noise; `clipped` when black clips enough of the
-/// background that a pixel's expected value is not the surface's.
+/// The background surface and read noise; `clipped` when black clips the background's pixels.
 #[derive(Clone, Copy, Debug)]
 struct Plane {
     surface: Surface,
     noise: f64,
     clipped: bool,
-    /// How far the background's cells scatter about the fitted surface beyond their noise,
-    /// gray levels: structure in the background no surface follows.
+    /// The cells' scatter about the surface beyond their noise, gray levels: structure.
     misfit: f64,
 }
 
 impl Plane {
-    /// The background a pixel at position (`x`, `y`) shows: the surface, or where black
-    /// clips the noise, the mean of the clipped values (a surface sloping below black reads
-    /// 0 there, not less).
+    /// The background a pixel at (`x`, `y`) shows: the surface, or its clipped mean where clipped.
     fn level_at(&self, x: f64, y: f64) -> f64 {
         let level = self.surface.at(x, y);
         if self.clipped {
@@ -250,8 +222,7 @@ impl Plane {
         }
     }
 
-    /// Fits the plane to cell medians, rejecting cells with light, and measures the noise
-    /// from horizontal neighbour differences in the cells kept.
+    /// Fits the background to cell levels, rejecting cells with light, and measures the noise.
     fn fit(raw: &[u16], width: usize, height: usize, depth: Depth) -> Self {
         let short = width.min(height);
         let cell = (short / CELLS_PER_SIDE).max(MIN_CELL_PX).min(short.max(1));
@@ -269,8 +240,7 @@ impl Plane {
                 }
                 let above_black = histogram.above_black();
                 let black = histogram.counts[0];
-                // Where black clips many pixels, the cell's mean is not its level: the
-                // level is read off the values above black (it may lie below 0).
+                // Black clips many pixels: the level is read above black (it may lie below 0).
                 let level = if f64::from(black) > CELL_CLIPPED_SHARE * f64::from(histogram.total) {
                     above_black.map(|(level, _)| level)
                 } else {
@@ -293,9 +263,7 @@ impl Plane {
                 cell.level = Some(0.0);
             }
         }
-        // Fitted from all cells, the plane may settle on the tails of spots that reach over
-        // most of the frame; light only adds, so a fit started from the darkest cells that
-        // lies clearly lower is the background then.
+        // Light only adds: a clearly lower fit from the darkest cells beats one on spots' tails.
         let known: Vec<bool> = cells.iter().map(|c| c.level.is_some()).collect();
         let flat = Surface::new(width, height, 3);
         let (mut plane, mut keep) = robust_surface(&cells, flat, known, PLANE_ROUNDS);
@@ -327,12 +295,10 @@ impl Plane {
             .flatten()
             .unwrap_or_else(|| differences.noise_from_differences())
             .max(MIN_NOISE_STEPS * depth.level_per_count);
-        // A cell's level is the mean of about `samples` pixels: that much of its scatter
-        // about the surface is noise.
+        // A cell's level averages about `samples` pixels: that much of its scatter is noise.
         let samples = kept_cells().map(|c| f64::from(c.total)).sum::<f64>()
             / kept_cells().count().max(1) as f64;
         let cell_noise = noise / samples.max(1.0).sqrt();
-        // The robust scatter of the kept cells' levels about a surface, beyond their noise.
         let misfit_of = |surface: &Surface, keep: &[bool]| {
             let residual = |c: &Cell| c.level.map(|l| l - surface.at(c.centre[0], c.centre[1]));
             let spread = robust_spread(kept(&cells, keep).filter_map(residual));
@@ -343,8 +309,7 @@ impl Plane {
             }
         };
         let mut misfit = misfit_of(&plane, &keep);
-        // A glow that bends across the frame: a quadratic surface from the plane's cells,
-        // when it explains most of what the plane leaves.
+        // A glow bending across the frame: a quadratic, if it explains most of what the plane left.
         let quadratic = Surface { terms: 6, ..plane };
         let (bowl, bowl_keep) = robust_surface(&cells, quadratic, keep, FIT_ROUNDS);
         let bowl_misfit = misfit_of(&bowl, &bowl_keep);
@@ -362,8 +327,7 @@ impl Plane {
     }
 }
 
-/// One cell of the background grid: its level, its pixel bounds `[x0, y0, x1, y1)`,
-/// how many of its samples read 0 out of how many, and the noise measured above black.
+/// A background cell: its level, bounds `[x0, y0, x1, y1)`, samples at 0 of all, noise above black.
 struct Cell {
     centre: [f64; 2],
     /// The background level, `None` when nearly everything reads black.
@@ -374,8 +338,7 @@ struct Cell {
     noise_above_black: Option<f64>,
 }
 
-/// Standard-normal points and their cumulative probabilities, half a σ apart: the noise is
-/// read off two quantiles one σ apart that both lie above the pixels clipped at black.
+/// Standard-normal points and cumulative probabilities, half a σ apart (see `above_black`).
 const NORMAL_POINTS: [(f64, f64); 5] = [
     (0.0, 0.5),
     (0.5, 0.6915),
@@ -384,9 +347,7 @@ const NORMAL_POINTS: [(f64, f64); 5] = [
     (2.0, 0.9772),
 ];
 
-/// Counts of a frame's values in bins (one per value up to 12 bits), with the sum of the
-/// values in each: medians, trimmed means and spreads in one pass over the bins, in gray
-/// levels.
+/// A frame's values binned (one bin per value up to 12 bits) with each bin's sum, in gray levels.
 struct Histogram {
     counts: Vec<u32>,
     sums: Vec<u64>,
@@ -427,20 +388,17 @@ impl Histogram {
         reaching(&self.counts, wanted).unwrap_or(self.counts.len() - 1)
     }
 
-    /// The mean without single outliers far above the median (hot pixels): the expected
-    /// level of a pixel, clipping at black included.
+    /// The mean without hot pixels far above the median: a pixel's level, clipping included.
     fn robust_mean(&self) -> f64 {
         let median_bin = self.quantile_bin(0.5);
         let median = self.level(median_bin);
-        // The median absolute deviation, from the distribution of |v - median|.
         let mut deviations = vec![0u32; self.counts.len()];
         for (bin, &count) in self.counts.iter().enumerate() {
             deviations[bin.abs_diff(median_bin)] += count;
         }
         let bin_levels = f64::from(self.depth.bin_counts) * self.depth.level_per_count;
         let mad = reaching(&deviations, self.total.div_ceil(2)).unwrap_or(0) as f64 * bin_levels;
-        // Half the pixels of a dark level near black read 0, which shrinks the MAD far
-        // below the noise: the spread above black keeps the cut out of the noise's tail.
+        // Near black half the pixels read 0, shrinking the MAD: the spread above black bounds it.
         let spread = (MAD_TO_SIGMA * mad)
             .max(self.above_black().map_or(0.0, |(_, noise)| noise))
             .max(1.0);
@@ -457,9 +415,8 @@ impl Histogram {
         if n == 0.0 { median } else { sum / n }
     }
 
-    /// The level and read noise of values that black clips, from two quantiles one σ
-    /// apart above the clipped share (for Gaussian noise, quantile p lies at level + z σ).
-    /// `None` when too little lies above black.
+    /// The level and read noise of values black clips, from two quantiles one σ apart above the
+    /// clipped share (quantile p lies at level + z σ); `None` when too little lies above black.
     fn above_black(&self) -> Option<(f64, f64)> {
         let black = f64::from(self.counts[0]) / f64::from(self.total.max(1));
         let lower = NORMAL_POINTS
@@ -472,10 +429,8 @@ impl Histogram {
         Some((low - z_low * noise, noise))
     }
 
-    /// The read noise from absolute differences of neighbouring background pixels: their
-    /// mean over the lower 98 % (hot pixels and edges dropped), which for Gaussian noise of
-    /// standard deviation σ is 0.953 · 2σ/√π. A mean, not a median, because differences of
-    /// pixels are whole numbers of counts.
+    /// The read noise from neighbour differences, whose lower 98 % average 0.953 · 2σ/√π for
+    /// Gaussian noise (a mean, not a median: differences are whole counts).
     fn noise_from_differences(&self) -> f64 {
         let mut keep = (f64::from(self.total) * TRIMMED_KEEP_SHARE).ceil() as u32;
         let (mut sum, mut n) = (0.0, 0.0);
@@ -501,7 +456,6 @@ fn reaching(counts: &[u32], wanted: u32) -> Option<usize> {
     })
 }
 
-/// The items of `items` whose flag in `keep` is set.
 pub(crate) fn kept<'a, T>(items: &'a [T], keep: &'a [bool]) -> impl Iterator<Item = &'a T> {
     items
         .iter()
@@ -512,8 +466,7 @@ pub(crate) fn kept<'a, T>(items: &'a [T], keep: &'a [bool]) -> impl Iterator<Ite
 /// The σ of a normal distribution is its median absolute deviation times this.
 const MAD_TO_SIGMA: f64 = 1.4826;
 
-/// The σ of `residuals` about 0, robustly: 1.4826 times their median absolute value (0
-/// when there are none).
+/// The σ of `residuals` about 0, robustly (0 when there are none).
 pub(crate) fn robust_spread(residuals: impl Iterator<Item = f64>) -> f64 {
     MAD_TO_SIGMA * median(residuals.map(f64::abs).collect()).unwrap_or(0.0)
 }
@@ -530,9 +483,7 @@ fn quantile_of(mut values: Vec<f64>, share: f64) -> Option<f64> {
     Some(*values.select_nth_unstable_by(at, f64::total_cmp).1)
 }
 
-/// A surface with `surface`'s terms fitted to the cells from those in `keep`, rejecting and
-/// readmitting cells by their residuals for at most `rounds` rounds: the surface and the
-/// cells it kept.
+/// `surface` fitted from the cells in `keep`, refitted by residual for up to `rounds` rounds.
 fn robust_surface(
     cells: &[Cell],
     mut surface: Surface,
@@ -560,8 +511,7 @@ fn robust_surface(
     (surface, keep)
 }
 
-/// Fits `surface`'s terms to the kept cells' levels by least squares; leaves it as it was
-/// when they do not determine them.
+/// Fits `surface`'s terms to the kept cells' levels by least squares (unchanged if it cannot).
 fn fit_least_squares(surface: &mut Surface, cells: &[Cell], keep: &[bool]) {
     let n = surface.terms;
     let mut normal = nalgebra::DMatrix::<f64>::zeros(n, n);
@@ -577,12 +527,8 @@ fn fit_least_squares(surface: &mut Surface, cells: &[Cell], keep: &[bool]) {
     }
 }
 
-/// Removes a constant offset from each column whose top and bottom bands, and two bands
-/// between them, all show one more than the typical column does (a read-out smear streak
-/// runs the whole height; beams rarely fill all four bands). A
-/// streak as wide as a beam is faint per column but clear over a few neighbouring columns,
-/// so an offset counts when it is significant in its own column or on average over
-/// [`STREAK_COLUMNS`] columns around it.
+/// Removes an offset from each column all four bands show (a smear runs the whole height; beams
+/// rarely fill all four bands), significant alone or over [`STREAK_COLUMNS`] (a wide streak).
 fn remove_column_streaks(light: &mut [f32], width: usize, height: usize, noise: f64) {
     let band = ((height as f64 * BAND_SHARE) as usize)
         .max(2)
@@ -592,8 +538,7 @@ fn remove_column_streaks(light: &mut [f32], width: usize, height: usize, noise: 
     }
     // A median's standard error is about 1.25 times the mean's.
     let limit = (STREAK_SIGNIFICANCE * 1.25 * noise / (band as f64).sqrt()) as f32;
-    // Each band's column medians, relative to the band's typical column: a streak is a
-    // few columns, an offset shared by all of them is left to the background.
+    // Each band's column medians less its typical column: an offset shared by all is background.
     let relative = |first_row: usize| {
         // Column by column, each column's `band` pixels in a run.
         let mut pixels: Vec<f32> = (0..band * width)
@@ -604,8 +549,6 @@ fn remove_column_streaks(light: &mut [f32], width: usize, height: usize, noise: 
         medians.iter_mut().for_each(|m| *m -= typical);
         medians
     };
-    // Two bands between the top and bottom ones too: spots in the top and bottom bands of
-    // the same columns leave a dark band between them.
     let bottom = height - band;
     let bands = [0, bottom / 3, 2 * bottom / 3, bottom].map(relative);
     let offsets: Vec<f32> = (0..width)
@@ -653,8 +596,7 @@ pub(crate) fn median_f32(values: &mut [f32]) -> f32 {
     *values.select_nth_unstable_by(mid, f32::total_cmp).1
 }
 
-/// Replaces hot pixels, single or in pairs: a pixel far brighter than all but one of its
-/// eight neighbours (a beam spreads over many pixels) takes their median.
+/// Replaces hot pixels, single or paired (far above all but one of 8 neighbours), by their median.
 fn repair_hot_pixels(light: &mut [f32], width: usize, height: usize, noise: f64) {
     let floor = (HOT_NOISES * noise) as f32;
     let mut ring = Vec::with_capacity(8);

@@ -1,19 +1,11 @@
-//! How far the stationary scene around a bright beam moved between two pictures (pointing
-//! jitter of a beam that carries its rings, halo and ghosts with it): the move of the
-//! beam's core centre in whole pixels, kept only when it makes the two pictures agree
-//! better around the beam than no move at all. A faint spot moving on the core's edge
-//! pulls that centre by a fraction of a pixel (and the comparison, which also improves by
-//! following the spot, cannot tell that from a move of the scene): taken for a move of the
-//! scene, it would leave residue where there was none, so a move under half a pixel counts
-//! as none.
+//! How far the stationary scene around a bright beam moved: its core's move in whole pixels, if
+//! that improves agreement; under half a pixel (a faint spot tugging the core's edge) is none.
 
 use super::core::{core_centre, pixel_range};
 use super::tuning::{SHIFT_STRIDE, SHIFT_WINDOW_RADII};
 use super::{Beam, Picture};
 
-/// How far the scene around `beam` of `before` (its core: the light above `share` of its
-/// peak) moved in `after`, whole px (x right, y down); zero when it did not move or its
-/// core was not found in both.
+/// How far the scene around `beam`'s core (above `share` of its peak) moved, whole px; else zero.
 pub fn scene_shift(before: &Picture, after: &Picture, beam: &Beam, share: f64) -> [f64; 2] {
     let still = [0.0, 0.0];
     let Some(from) = core_centre(before, beam, share) else {
@@ -37,10 +29,8 @@ pub fn scene_shift(before: &Picture, after: &Picture, beam: &Beam, share: f64) -
     }
 }
 
-/// For each of the `shifts`, what is left of `after` around `centre` (within `half` px per
-/// axis) once `before`, moved by the shift and scaled by the gain that fits best (the
-/// laser's power drift), is taken away: the sums of squares over the pixels unsaturated in
-/// both pictures for every shift; `None` when there are none.
+/// For each shift, the sum of squares left of `after` around `centre` (`half` px per axis) once
+/// `before`, shifted and scaled by its best gain, is taken off; `None` when nothing is compared.
 fn misfits(
     before: &Picture,
     after: &Picture,
@@ -73,8 +63,7 @@ fn misfits(
     Some([left(sums[0])?, left(sums[1])?])
 }
 
-/// The light at a point (pixel centres at `i + 0.5`), bilinear; `None` outside the picture
-/// or next to a saturated pixel.
+/// The bilinear light at `point` (pixel centres at `i + 0.5`); `None` off the picture or saturated.
 fn sample(picture: &Picture, point: [f64; 2]) -> Option<f64> {
     let (w, h) = (picture.width(), picture.height());
     let (x, y) = (point[0] - 0.5, point[1] - 0.5);

@@ -1,14 +1,12 @@
-//! Every threshold and size the detector uses, in one place, each with its unit and the
-//! reason for its value. Units: px (pixels), gray levels (of an 8-bit frame), noises (read-noise
-//! deviations of the quantity compared), shares (fractions of the named whole).
+//! Every threshold and size the detector uses, with its unit and the reason for its value. Units:
+//! px, gray levels (of an 8-bit frame), noises (read-noise deviations), shares (of a named whole).
 
 // A frame's background, read noise, streaks and hot pixels (`picture`)
 
 /// Cells per short image side for the background fit ...
 pub(crate) const CELLS_PER_SIDE: usize = 16;
 
-/// ... each at least this many pixels across, so that its level averages enough pixels
-/// (every other one of every other row: 64 of them) to stand above the noise.
+/// ... each at least this many px across, so its level (64 sampled pixels) stands above the noise.
 pub(crate) const MIN_CELL_PX: usize = 16;
 
 /// A cell whose median is this many robust deviations from the plane holds light.
@@ -20,17 +18,13 @@ pub(crate) const DARKEST_START_SHARE: f64 = 0.25;
 /// ... rejects and readmits cells for at most this many rounds ...
 pub(crate) const FIT_ROUNDS: usize = 20;
 
-/// ... and is the background when it lies this many gray levels below the fit from all
-/// cells at the image centre.
+/// ... and is the background when this many gray levels below the all-cells fit (light only adds).
 pub(crate) const LIFTED_LEVELS: f64 = 1.0;
 
-/// The cells' scatter about the background surface is structure (a misfit) only when it
-/// exceeds their noise this many times; below, it is the noise's own scatter.
+/// The cells' scatter about the background is a misfit only above this many times their noise.
 pub(crate) const MISFIT_SIGNIFICANCE: f64 = 1.5;
 
-/// A quadratic background replaces the plane when the kept cells' scatter about it is at
-/// most this share of their scatter about the plane (beyond their noise): three more terms
-/// must explain most of what the plane leaves, not a little of it.
+/// A quadratic background replaces the plane when its misfit is at most this share of the plane's.
 pub(crate) const QUADRATIC_GAIN: f64 = 0.5;
 
 /// Share of the image height at the top and at the bottom where column streaks are read.
@@ -48,31 +42,25 @@ pub(crate) const HOT_NOISES: f64 = 6.0;
 /// ... and all but one of its eight neighbours by this factor.
 pub(crate) const HOT_RATIO: f32 = 2.5;
 
-/// The floor of the noise estimate, in the frame's quantisation steps (quantisation alone
-/// gives 0.29).
+/// The floor of the noise estimate, quantisation steps (quantisation alone gives 0.29).
 pub(crate) const MIN_NOISE_STEPS: f64 = 0.3;
 
-/// Histogram bins at most: a 16-bit frame's are 16 counts wide (1/16 gray level), finer
-/// than any camera's read noise.
+/// Histogram bins at most: a 16-bit frame's are then 1/16 gray level, finer than any read noise.
 pub(crate) const MAX_BINS: u32 = 4096;
 
-/// Above this share of background pixels at 0, the noise is read from the spread above black
-/// instead of from neighbour differences (which clipping shrinks).
+/// Above this share of background at 0, noise is read above black (clipping shrinks differences).
 pub(crate) const CLIPPED_DARK_SHARE: f64 = 0.02;
 
-/// Above this share of a cell's pixels at 0, its level is read from the values above black
-/// (below it, the mean of the clipped values is within 0.05 σ of the level).
+/// Above this share of a cell's pixels at 0, its level is read above black (below: mean ±0.05 σ).
 pub(crate) const CELL_CLIPPED_SHARE: f64 = 0.1;
 
-/// Below this share of cells with a level (the rest read nearly all black), the background
-/// is taken as black wherever it reads so.
+/// Below this share of cells with a level (others read nearly all black), the others are set to 0.
 pub(crate) const MIN_KNOWN_SHARE: f64 = 0.3;
 
 /// How far above the share of clipped pixels a quantile used for the noise must lie.
 pub(crate) const CLIP_MARGIN: f64 = 0.05;
 
-/// A value piled up on at least this many pixels, more than on the value below it, is the
-/// sensor's saturation level even below the file's full scale.
+/// A top value on this many pixels, more than on the value below, is saturation below full scale.
 pub(crate) const SATURATION_PLATEAU_PIXELS: usize = 8;
 
 /// Rounds of rejecting and readmitting cells in the plane fit.
@@ -84,8 +72,7 @@ pub(crate) const MIN_QUADRATIC_CELLS: usize = 12;
 /// Histogram values this many robust deviations above the median are light, not background.
 pub(crate) const HISTOGRAM_OUTLIER_SPREADS: f64 = 8.0;
 
-/// The trimmed mean of a histogram keeps this share of its values (the brightest 2 % are
-/// light or hot pixels).
+/// Share of a histogram's values its trimmed mean keeps (the brightest 2 % are light or hot).
 pub(crate) const TRIMMED_KEEP_SHARE: f64 = 0.98;
 
 // The noise map (`noise`)
@@ -101,8 +88,7 @@ pub(crate) const LEVEL_REACH: usize = 1;
 /// Pixels per side of the blocks the picture is reduced to for finding regions.
 pub(crate) const BLOCK: usize = 4;
 
-/// A block (averaged with its neighbours) holds light when it exceeds this many noise
-/// deviations of such an average.
+/// A smoothed block holds light above this many noise deviations of its average.
 pub(crate) const THRESHOLD_NOISES: f64 = 4.5;
 
 /// Regions whose light is below this share of the strongest region's are dropped.
@@ -114,43 +100,33 @@ pub(crate) const MIN_SIGNIFICANCE: f64 = 8.0;
 /// Blocks above this share of a region's peak are its core.
 pub(crate) const CORE_SHARE: f32 = 0.2;
 
-/// A core found when a region is split at its cores (`Grid::split` in beams.rs) counts
-/// only when its peak stands this many noise deviations of a smoothed block above the core
-/// level: in heavy noise the level's contour breaks into islands that are one beam.
+/// Smoothed-block noises a split region's core must peak above the core level (not a noise island).
 pub(crate) const CORE_PROMINENCE_NOISES: f32 = 5.0;
 
-/// Two regions are one beam when their cores are nearer than this share of the distance
-/// between their centres (a dark node line or fringe inside one beam is narrow; the gap
-/// between two beams is wide)...
+/// Regions are one beam if their cores are nearer than this share of their distance (a node is
+/// narrow, a gap between beams wide) ...
 pub(crate) const JOIN_GAP_SHARE: f64 = 0.35;
 
 /// ... and the weaker peak is at least this share of the stronger ...
 pub(crate) const JOIN_PEAK_SHARE: f32 = 0.2;
 
-/// ... and the light between them falls below this share of what two separate beams'
-/// tails would add up to there (each region a Gaussian of its own moments): a node, where
-/// the light of one coherent beam cancels (a mode's lobes, a beam's stripes between dark
-/// fringes), not the sum of two beams side by side, which is never less than their tails.
-/// Half leaves room for the regions' moments, cut where they meet, underrating their
-/// tails; a mode's node, ideally dark, holds a few per cent of its lobes' peak.
+/// ... and the light between them is below this share of two Gaussian tails' sum (a node): half,
+/// as moments cut where regions meet underrate the tails; a mode's node holds a few per cent.
 pub(crate) const JOIN_NODE_SHARE: f64 = 0.5;
 
 /// The node may exceed that share by this many deviations of a block's mean.
 pub(crate) const JOIN_VALLEY_NOISES: f64 = 3.0;
 
-/// In the measuring window, blocks whose smoothed light lies within this many background
-/// misfits of the background count as none: the background is known no better there, and
-/// over a window of thousands of pixels such residue would outweigh the beam's wings.
+/// Window blocks within this many background misfits are dark: residue would outweigh the wings.
 pub(crate) const MOMENT_FLOOR_MISFITS: f32 = 3.0;
 
-/// Half the side of the measuring window, in second-moment radii (1/e² radii of a Gaussian).
+/// Half the side of the measuring window (ISO 11146), second-moment (1/e²) radii.
 pub(crate) const MOMENT_WINDOW_RADII: f64 = 2.5;
 
 /// The window iteration stops when the centre moves less than this, px.
 pub(crate) const SETTLED_PX: f64 = 0.01;
 
-/// Mean neighbour difference beyond the noise, over the mean light, above which a beam is
-/// speckle rather than a spot.
+/// Mean neighbour difference beyond the noise, share of the mean light, above which it is speckle.
 pub(crate) const MAX_SPOT_ROUGHNESS: f64 = 0.15;
 
 /// A beam still this bright at the image border (share of its peak) is cut by it.
@@ -159,10 +135,10 @@ pub(crate) const CLIPPED_SHARE: f64 = 0.05;
 /// This many saturated pixels make a saturated beam.
 pub(crate) const SATURATED_PIXELS: usize = 4;
 
-/// The spot fit uses blocks brighter than this share of the peak and this many block noise
-/// deviations: the faint rim carries mostly noise.
+/// The spot fit uses blocks brighter than this share of the peak ...
 pub(crate) const FIT_FLOOR_SHARE: f64 = 0.08;
 
+/// ... and this many block-noise deviations: the faint rim carries mostly noise.
 pub(crate) const FIT_FLOOR_NOISES: f64 = 3.0;
 
 /// A fitted radius beyond this multiple of the measured radius is a flat clump of noise.
@@ -171,21 +147,16 @@ pub(crate) const MAX_FIT_RADIUS_SHARE: f64 = 3.0;
 /// A region needs at least this many bright blocks (48 px²): fewer are a noise peak.
 pub(crate) const MIN_REGION_BLOCKS: usize = 3;
 
-/// The floor of a beam's second moment per axis, px² (a quarter pixel²: a pixel's own
-/// width), so a one-pixel spot keeps a window.
+/// Floor of a beam's second moment per axis, px² (a pixel's width): a 1 px spot keeps a window.
 pub(crate) const MIN_MOMENT_VARIANCE_PX2: f64 = 0.25;
 
 /// A Gaussian fit needs at least this many points (four unknowns, four times over).
 pub(crate) const MIN_GAUSSIAN_PIXELS: usize = 16;
 
-/// Classes of interleaved cells a beam's light is split into to measure how surely its
-/// centre is known (a 3 x 3 pattern of cells: eight degrees of freedom per axis, the
-/// estimate's own scatter about a quarter of it).
+/// Interleaved cell classes (3 x 3) whose scatter gives a centre's certainty: 8 dof per axis.
 pub(crate) const SPLIT_CLASSES: usize = 9;
 
-/// Cells of that pattern per second-moment radius (minor): the pattern repeats every
-/// three cells, 3/4 of a radius, where a Gaussian beam's own shape has no power left
-/// (e^-9 of its peak), so shape cancels between classes and only finer structure remains.
+/// Cells of that pattern per minor radius: a 3/4-radius period, where a Gaussian has no power left.
 pub(crate) const SPLIT_CELLS_PER_RADIUS: f64 = 4.0;
 
 // A beam's bright core (`core`)
@@ -198,8 +169,7 @@ pub(crate) const CORE_WINDOW_RADII: f64 = 1.5;
 
 // What changed between two frames (`changes`)
 
-/// Two pictures' backgrounds are compared every this many pixels of a row, px (smooth
-/// surfaces, interpolated between).
+/// Two backgrounds are compared every this many px of a row (smooth: interpolated between).
 pub(crate) const BACKGROUND_STRIDE: usize = 16;
 
 /// Pixels brighter than this many noise deviations in both pictures set the gain ...
@@ -214,8 +184,7 @@ pub(crate) const GAIN_STRIDE: usize = 3;
 /// Side of the cells whose mean changes the level of a difference is fitted to, px.
 pub(crate) const LEVEL_CELL: usize = 64;
 
-/// A cell whose mean change lies this many robust deviations off the fitted level holds
-/// a change of its own.
+/// A cell this many robust deviations off the fitted level holds a change of its own.
 pub(crate) const LEVEL_OUTLIER: f64 = 3.0;
 
 /// Side of the blocks that decide which sign of change a place shows.
