@@ -499,7 +499,7 @@ impl Tracker {
     /// Whether anything was seen or missed within `within` steps of `command`.
     pub fn tried_within(&self, command: Vec2, within: f64) -> bool {
         let near = |u: &Vec2| distance(*u, command) < within;
-        let seen = self.clean.iter().chain(&self.partial).map(|s| &s.command);
+        let seen = self.sightings().map(|s| &s.command);
         seen.chain(&self.missing).any(near)
     }
 
@@ -628,10 +628,12 @@ impl Tracker {
     }
 
     pub fn latest(&self) -> Option<&Sight> {
-        self.clean
-            .iter()
-            .chain(&self.partial)
-            .max_by_key(|s| s.order)
+        self.sightings().max_by_key(|s| s.order)
+    }
+
+    /// Every sighting, the clean ones first.
+    fn sightings(&self) -> impl Iterator<Item = &Sight> {
+        self.clean.iter().chain(&self.partial)
     }
 
     /// After a move lost the feature, the same move the other way from where it last showed.
@@ -652,7 +654,7 @@ impl Tracker {
         if spans {
             return self.clean.clone();
         }
-        let mut all: Vec<Sight> = self.clean.iter().chain(&self.partial).copied().collect();
+        let mut all: Vec<Sight> = self.sightings().copied().collect();
         all.sort_by_key(|s| s.order);
         all
     }
