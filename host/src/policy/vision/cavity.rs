@@ -9,8 +9,8 @@ use super::sight::{Scales, default_radius, sight};
 use super::tuning::{
     APART_RADII, CAUTIOUS_SHARE, CAVITY_MATCH_RADII, CAVITY_PROBE_RADII, CAVITY_SEARCH_SHARE,
     CAVITY_TOLERANCE_RADII, CHECK_CLEARANCE_RADII, CORE_REACH_RADII, DONE_CONFIDENCE, HIDDEN_RADII,
-    MIN_CHANGE_RADIUS_PX, PRIMARY, PRIMARY_CORE_SHARE, PROBE_GROWTH, PROBE_SHARES, RESOLVED_RADII,
-    SAME_STEP, SEARCH_LEVELS, SEARCH_TRIED_SHARE, SECONDARY,
+    MIN_CHANGE_RADIUS_PX, PRIMARY, PRIMARY_CORE_SHARE, PROBE_GROWTH, RESOLVED_RADII, SAME_STEP,
+    SEARCH_LEVELS, SEARCH_TRIED_SHARE, SECONDARY,
 };
 use crate::imaging::{core_centre, core_radius, nearest, registered_changes_sized, scene_shift};
 use crate::task::{Action, CavityLimits};
@@ -205,14 +205,13 @@ impl CavityAgent {
         let vanished = moved.from.filter(|s| {
             outside(s) && like_secondary(s) && appeared.is_none_or(|a| alike(&a.change, &s.change))
         });
-        let [lo, hi] = PROBE_SHARES.map(|share| share * self.tracker.shorter_span());
         if let (Some(a), Some(v)) = (appeared, vanished)
             && distance(a.beam.centre, v.beam.centre)
                 <= RESOLVED_RADII * a.beam.size().max(v.beam.size())
         {
             // Moved too little to tell where it went: a longer probe next time.
-            let probe = self.tracker.probe.map(|p| (p * PROBE_GROWTH).clamp(lo, hi));
-            self.tracker.set_probe(probe);
+            self.tracker
+                .set_probe(self.tracker.scaled_probe(PROBE_GROWTH));
             return false;
         }
         let other = Some((target, primary_radius));
@@ -247,6 +246,7 @@ impl CavityAgent {
             if !(step < SAME_STEP || self.tracker.model().is_some()) {
                 let response = distance(v.beam.centre, a.beam.centre) / step;
                 let length = CAVITY_PROBE_RADII * a.change.size() / response.max(1e-9);
+                let [lo, hi] = self.tracker.probe_bounds();
                 self.tracker.set_probe([length.clamp(lo, hi); 2]);
             }
         }

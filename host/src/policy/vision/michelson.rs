@@ -10,8 +10,8 @@ use super::tuning::{
     ALIKE_LIGHT, BORDER_RADII, CAUTIOUS_SHARE, CHECK_APART_RADII, DONE_CONFIDENCE, GRID_VIEW_SHARE,
     IN_VIEW_RADII, LANDS_WITHIN_PX, MICHELSON_APART_RADII, MICHELSON_MATCH_RADII,
     MICHELSON_PROBE_RADII, MICHELSON_SEARCH_SHARE, MIN_NOISE_PX, MIN_SPREAD_SHARE, PARK_SHARE,
-    PARK_WHEN_SHARE, PROBE_GROWTH, PROBE_SHARES, PROBE_VIEW_SHARE, SAME_STEP, SEARCH_GRID_SHARE,
-    TARGET_TURN, WHOLE_RADII,
+    PARK_WHEN_SHARE, PROBE_GROWTH, PROBE_VIEW_SHARE, SAME_STEP, SEARCH_GRID_SHARE, TARGET_TURN,
+    WHOLE_RADII,
 };
 use crate::imaging::Beam;
 use crate::task::{Action, MichelsonLimits};
@@ -226,10 +226,11 @@ impl MichelsonAgent {
         if step < SAME_STEP {
             return;
         }
-        let span = self.trackers[k].shorter_span();
-        let [lo, hi] = PROBE_SHARES.map(|share| share * span);
-        let probe = self.trackers[k].probe;
-        let scaled = |factor: f64| probe.map(|p| (p * factor).clamp(lo, hi));
+        let tracker = &self.trackers[k];
+        let span = tracker.shorter_span();
+        let [lo, hi] = tracker.probe_bounds();
+        let probe = tracker.probe;
+        let scaled = |factor: f64| tracker.scaled_probe(factor);
         let length = match seen {
             [
                 Some(Sighting::Clean(a) | Sighting::Fitted(a)),
@@ -247,8 +248,8 @@ impl MichelsonAgent {
             [_, Some(Sighting::Partial(_))] => {
                 [MICHELSON_SEARCH_SHARE * span; 2].map(|p| p.max(probe[0]))
             }
-            [None, None] if !self.trackers[k].clean.is_empty() => {
-                if self.trackers[k].model().is_none() && !self.still_in_view(k, after) {
+            [None, None] if !tracker.clean.is_empty() => {
+                if tracker.model().is_none() && !self.still_in_view(k, after) {
                     // Out of view before and after: a longer probe would only stray farther.
                     probe
                 } else {
@@ -437,7 +438,7 @@ impl MichelsonAgent {
             return;
         }
         let wanted = self.useful_move(k, size);
-        let [lo, hi] = PROBE_SHARES.map(|share| share * self.trackers[k].shorter_span());
+        let [lo, hi] = self.trackers[k].probe_bounds();
         let probe = [0, 1].map(|axis| {
             let response = known.gain[0][axis].hypot(known.gain[1][axis]);
             (wanted / response.max(1e-9)).clamp(lo, hi)

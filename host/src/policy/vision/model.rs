@@ -6,8 +6,8 @@ use std::ops::RangeInclusive;
 use super::bench::{self, Point};
 use super::tuning::{
     ACROSS_REACH_PROBES, ACROSS_SHORTENING, BAND_CONFIDENCE, BAND_MIN_SIGHTINGS, BAND_PER_SIDE,
-    BAND_WORTH_NOISES, MIN_SPREAD_PROBES, PROBE_MULTIPLES, ROBUST_MIN_POINTS, ROUGH_BALANCE,
-    ROUGH_REACH, SAME_COMMAND_SHARE, SAME_STEP, SEARCH_REFINEMENTS, SEARCH_RINGS,
+    BAND_WORTH_NOISES, MIN_SPREAD_PROBES, PROBE_MULTIPLES, PROBE_SHARES, ROBUST_MIN_POINTS,
+    ROUGH_BALANCE, ROUGH_REACH, SAME_COMMAND_SHARE, SAME_STEP, SEARCH_REFINEMENTS, SEARCH_RINGS,
 };
 
 /// A 2-vector (motor steps or pixels).
@@ -510,6 +510,17 @@ impl Tracker {
     pub fn shorter_span(&self) -> f64 {
         let [a, b] = self.spans();
         a.min(b)
+    }
+
+    /// The shortest and longest probe, steps: [`PROBE_SHARES`] of the shorter span.
+    pub fn probe_bounds(&self) -> Vec2 {
+        PROBE_SHARES.map(|share| share * self.shorter_span())
+    }
+
+    /// The probe scaled by `factor`, within [`Self::probe_bounds`].
+    pub fn scaled_probe(&self, factor: f64) -> Vec2 {
+        let [lo, hi] = self.probe_bounds();
+        self.probe.map(|p| (p * factor).clamp(lo, hi))
     }
 
     pub fn clamp(&self, command: Vec2) -> Vec2 {
