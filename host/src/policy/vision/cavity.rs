@@ -210,8 +210,7 @@ impl CavityAgent {
                 <= RESOLVED_RADII * a.beam.size().max(v.beam.size())
         {
             // Moved too little to tell where it went: a longer probe next time.
-            self.tracker
-                .set_probe(self.tracker.scaled_probe(PROBE_GROWTH));
+            self.tracker.probe = self.tracker.scaled_probe(PROBE_GROWTH);
             return false;
         }
         let other = Some((target, primary_radius));
@@ -247,7 +246,7 @@ impl CavityAgent {
                 let response = distance(v.beam.centre, a.beam.centre) / step;
                 let length = CAVITY_PROBE_RADII * a.change.size() / response.max(1e-9);
                 let [lo, hi] = self.tracker.probe_bounds();
-                self.tracker.set_probe([length.clamp(lo, hi); 2]);
+                self.tracker.probe = [length.clamp(lo, hi); 2];
             }
         }
         self.tracker.estimate_band();

@@ -272,7 +272,7 @@ impl MichelsonAgent {
             }
             _ => probe,
         };
-        self.trackers[k].set_probe(length);
+        self.trackers[k].probe = length;
     }
 
     /// Where probes steer beam `k`: the `centre`, or, with [`Self::obstacle`] near it, a place in
@@ -443,7 +443,7 @@ impl MichelsonAgent {
             let response = known.gain[0][axis].hypot(known.gain[1][axis]);
             (wanted / response.max(1e-9)).clamp(lo, hi)
         });
-        self.trackers[k].set_probe(probe);
+        self.trackers[k].probe = probe;
     }
 
     /// Moves mirror `k` to `u`, parking the other beam in the same move ([`Self::parking`]).
@@ -486,9 +486,8 @@ impl MichelsonAgent {
     fn search(&mut self, k: usize, u: Vec2) -> Action {
         let j = 1 - k;
         let (probe, grid) = (self.trackers[k].probe, self.trackers[k].search_grid);
-        let other = &mut self.trackers[j];
-        other.set_probe(probe);
-        other.search_grid = other.search_grid.or(grid);
+        self.trackers[j].probe = probe;
+        self.trackers[j].search_grid = self.trackers[j].search_grid.or(grid);
         self.set_mirror(k, self.trackers[k].clamp(u));
         self.set_mirror(j, self.trackers[j].next_probe([0.0, 0.0]));
         self.send(Step::Search { k }, false)

@@ -581,11 +581,6 @@ impl Tracker {
             .unwrap_or_else(|| self.clamp([start[0] + px, start[1] + py]))
     }
 
-    /// Sets the probe length per axis (the spread a fit needs does not change with it).
-    pub fn set_probe(&mut self, probe: Vec2) {
-        self.probe = probe;
-    }
-
     pub fn is_fresh(&self) -> bool {
         self.clean.is_empty() && self.partial.is_empty() && self.missing.is_empty()
     }

@@ -383,8 +383,7 @@ impl RelayAgent {
         self.search.add_missing(u);
         if self.search.missing.len() > 1 && self.nominal_response(2 * self.mirror).is_none() {
             let widest = self.widest_search();
-            let probe = self.search.probe.map(|p| (p * SEARCH_GROWTH).min(widest));
-            self.search.set_probe(probe);
+            self.search.probe = self.search.probe.map(|p| (p * SEARCH_GROWTH).min(widest));
         }
         self.tilt_to(self.search.next_probe(self.near_start))
     }
