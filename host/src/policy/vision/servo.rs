@@ -28,8 +28,9 @@ pub struct Best {
 }
 
 /// What the last command was.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
 enum Pending {
+    #[default]
     Nothing,
     Probe {
         axis: usize,
@@ -40,7 +41,7 @@ enum Pending {
 }
 
 /// The servo of one station.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, Default)]
 pub struct Servo {
     best: Option<Best>,
     /// The bench model of the response, from the first sighting on.
@@ -73,20 +74,13 @@ impl Servo {
     pub fn new(probe: f64, bounds: Vec2, gain: Option<[[f64; 2]; 2]>) -> Self {
         let probe = probe.clamp(bounds[0], bounds[1]);
         Self {
-            best: None,
-            model: None,
             prior: gain,
             confirmed: true,
-            probed: [false; 2],
-            cut: false,
             probe,
             radius: (START_RADIUS_PROBES * probe).clamp(bounds[0], bounds[1]),
             bounds,
-            pending: Pending::Nothing,
-            last: None,
-            brightest: 0.0,
             probe_sign: 1.0,
-            refuted_at: None,
+            ..Self::default()
         }
     }
 
