@@ -48,6 +48,7 @@ pub enum Thrown {
 }
 
 /// The backdrops of a task's camera places.
+#[derive(Default)]
 pub struct Backdrops {
     places: Vec<Place>,
 }

@@ -20,13 +20,15 @@ use super::tuning::{
 use crate::imaging::{Beam, strongest};
 use crate::task::{BenchGeometry, RelayAction, RelayLimits};
 
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
 enum Phase {
+    #[default]
     Near,
     Far,
 }
 
 /// The relay state machine.
+#[derive(Default)]
 pub struct RelayAgent {
     limits: RelayLimits,
     /// Each station's distance from the mirror that starts its segment, when known.
@@ -81,8 +83,6 @@ impl RelayAgent {
                 .placement_repeatability_mm
                 .zip(geometry.pixel_pitch_mm())
                 .map(|(spread, pitch)| spread / pitch[0].min(pitch[1])),
-            placements: Vec::new(),
-            placed: false,
             px_per_step_mm: geometry
                 .tilt_rad_per_step
                 .zip(geometry.pixel_pitch_mm())
@@ -90,26 +90,9 @@ impl RelayAgent {
                     // The smaller beam turn: 2 θ cos 45° (vertical tilt, 45° mirror).
                     2.0 * tilt * std::f64::consts::FRAC_1_SQRT_2 / pitch[0].max(pitch[1])
                 }),
-            cumulative: [0; 8],
             station: 7,
-            mirror: 0,
-            phase: Phase::Near,
-            search: Tracker::new([1.0; 2], [[0.0; 2]; 2]),
-            near_start: [0.0; 2],
-            near: Servo::new(1.0, [1.0, 1.0], None),
-            far: Servo::new(1.0, [1.0, 1.0], None),
-            far_steps: 0,
-            far_dark: 0,
-            far_start: [0.0; 2],
-            known_near: None,
-            previous: None,
-            stray: Vec::new(),
-            radius: None,
-            last: None,
-            seen_at: None,
             backdrops: Backdrops::new(8),
-            throw: None,
-            return_to: None,
+            ..Self::default()
         };
         agent.near = agent.new_near_servo();
         agent.search = agent.new_search();
