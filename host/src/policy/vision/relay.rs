@@ -108,21 +108,23 @@ impl RelayAgent {
 
     /// The current mirror's search: a grid at the nominal response, else a growing cautious one.
     fn new_search(&self) -> Tracker {
-        let bound = f64::from(self.limits.max_cumulative);
-        let probe = match self
+        let bound = self.bound();
+        let nominal = self
             .nominal_response(2 * self.mirror)
-            .zip(self.image_side_px)
-        {
-            Some((response, side)) => {
-                (RELAY_SEARCH_GRID_SHARE * side / response).clamp(1.0, self.widest_search())
-            }
-            None => CAUTIOUS_SHARE * 2.0 * bound,
-        };
+            .zip(self.image_side_px);
+        let probe = nominal.map_or(CAUTIOUS_SHARE * 2.0 * bound, |(response, side)| {
+            (RELAY_SEARCH_GRID_SHARE * side / response).clamp(1.0, self.widest_search())
+        });
         Tracker::new([probe, probe], [[-bound, bound], [-bound, bound]])
     }
 
     fn widest_search(&self) -> f64 {
-        MAX_SEARCH_SHARE * f64::from(self.limits.max_cumulative)
+        MAX_SEARCH_SHARE * self.bound()
+    }
+
+    /// The bound on each axis's cumulative tilt, steps.
+    fn bound(&self) -> f64 {
+        f64::from(self.limits.max_cumulative)
     }
 
     /// The cumulative command of mirror `m` (vertical, horizontal), steps.
@@ -212,10 +214,9 @@ impl RelayAgent {
                 self.forget_sightings();
             }
             let further = [0, 1].map(|a| self.command_of(self.mirror)[a] + throw.step[a]);
-            let bound = f64::from(self.limits.max_cumulative);
             if outcome == Thrown::Short
                 && throw.made < MAX_THROWS
-                && further.iter().all(|c| c.abs() <= bound)
+                && further.iter().all(|c| c.abs() <= self.bound())
             {
                 throw.made += 1;
                 let step = throw.step;
@@ -246,7 +247,6 @@ impl RelayAgent {
             return None;
         }
         let wanted = THROW_RADII * size;
-        let bound = f64::from(self.limits.max_cumulative);
         let command = self.command_of(self.mirror);
         let mut best: Option<(f64, Vec2, f64)> = None;
         for axis in 0..2 {
@@ -258,7 +258,7 @@ impl RelayAgent {
                 .min(f64::from(self.limits.max_step))
                 .round();
             let sign = if command[axis] > 0.0 { -1.0 } else { 1.0 };
-            if (command[axis] + sign * steps).abs() <= bound
+            if (command[axis] + sign * steps).abs() <= self.bound()
                 && best.is_none_or(|(s, _, _)| steps < s)
                 && steps * response >= 2.0 * size
             {
@@ -294,7 +294,7 @@ impl RelayAgent {
 
     /// A servo at `station`, with response `gain` if known, else probes sized by the best guess.
     fn new_servo(&self, station: usize, gain: Option<[[f64; 2]; 2]>) -> Servo {
-        let range = 2.0 * f64::from(self.limits.max_cumulative);
+        let range = 2.0 * self.bound();
         let side = self.image_side_px.or_else(|| {
             self.previous
                 .as_ref()
@@ -517,7 +517,7 @@ impl RelayAgent {
     /// The tilt of [`Self::tilt_to`], at most the longest allowed per axis, and whether it arrives.
     fn tilt_towards(&self, target: Vec2) -> (RelayAction, bool) {
         let step = f64::from(self.limits.max_step);
-        let bound = f64::from(self.limits.max_cumulative);
+        let bound = self.bound();
         let u = self.command_of(self.mirror);
         let wanted = [0, 1].map(|a| target[a].clamp(-bound, bound) - u[a]);
         let tilt = tilt_by(self.mirror, wanted.map(|w| w.clamp(-step, step).round()));
