@@ -337,12 +337,11 @@ impl RelayAgent {
     /// At the near station: centre the spot (searching while never seen), then go to the far one.
     fn near_phase(&mut self, spot: Option<Beam>, centre: Vec2, size: Vec2) -> RelayAction {
         let u = self.command_of(self.mirror);
-        let side = size[0].min(size[1]);
         let seen = spot.map(|s| self.estimate(&s));
         if let Some(s) = spot.filter(|s| !s.clipped) {
             self.radius = Some(s.size());
         }
-        self.near.observe(u, seen, centre, side);
+        self.near.observe(u, seen, centre, size[0].min(size[1]));
         let near_station = 2 * self.mirror;
         if let Some(best) = self.near.best()
             && best.spot.whole
@@ -374,7 +373,6 @@ impl RelayAgent {
     /// At the far station: centre the spot, searching around while dark; failing, back to the near.
     fn far_phase(&mut self, spot: Option<Beam>, centre: Vec2, size: Vec2) -> RelayAction {
         let u = self.command_of(self.mirror);
-        let side = size[0].min(size[1]);
         let seen = spot.map(|s| self.estimate(&s));
         let last = self.mirror == 3;
         if last && self.placed && self.far.best().is_some() {
@@ -388,14 +386,12 @@ impl RelayAgent {
             self.placements.push((u, s.at));
         }
         // At C8, with several placements needed, aim so that their average is centred.
-        let target = match seen.filter(|s| s.whole && last && self.placements_needed(0.0) > 1) {
-            Some(s) => {
-                let average = self.placements_average(u).unwrap_or(s.at);
-                [0, 1].map(|a| centre[a] + s.at[a] - average[a])
-            }
-            None => centre,
-        };
-        self.far.observe(u, seen, target, side);
+        let aimed = seen.filter(|s| s.whole && last && self.placements_needed(0.0) > 1);
+        let target = aimed.map_or(centre, |s| {
+            let average = self.placements_average(u).unwrap_or(s.at);
+            [0, 1].map(|a| centre[a] + s.at[a] - average[a])
+        });
+        self.far.observe(u, seen, target, size[0].min(size[1]));
         let share = if last { DONE_SHARE } else { PASS_SHARE };
         // At C8 the spot must also be compact (a speckle cloud is no aligned beam).
         let compact = spot.is_some_and(|s| s.localised) || !last;
