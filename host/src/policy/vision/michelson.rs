@@ -100,18 +100,15 @@ impl MichelsonAgent {
         if matches!(self.last, Step::Final) {
             return self.send(Step::Final, false);
         }
-        if remaining <= 1 {
-            return self.finish(centre, false);
-        }
         let unmapped = |k: &usize| self.trackers[*k].model().is_none() || self.refuted[*k];
         let next = (0..2)
             .filter(unmapped)
             .find(|&k| self.sighted(k))
             .or_else(|| (0..2).find(unmapped));
+        if remaining <= 1 || (next.is_some() && remaining <= 3) {
+            return self.finish(centre, false);
+        }
         if let Some(k) = next {
-            if remaining <= 3 {
-                return self.finish(centre, false);
-            }
             if let Some(appeared) = self.appeared.take() {
                 return self.attribute(k, appeared);
             }
