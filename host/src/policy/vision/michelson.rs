@@ -158,9 +158,7 @@ impl MichelsonAgent {
         match self.last {
             Step::Start | Step::Final => {}
             Step::Probe { k, parked } => {
-                if self.observe_probe(&before, view, k, parked) {
-                    self.refuted[k] = false;
-                }
+                self.refuted[k] &= !self.observe_probe(&before, view, k, parked)
             }
             Step::Check { predicted } => {
                 let repeated = self.repeated();
