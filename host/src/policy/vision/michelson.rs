@@ -301,12 +301,8 @@ impl MichelsonAgent {
         let reachable =
             |p: &Vec2| map.is_none_or(|m| m.solve(*p).is_some_and(|u| tracker.clamp(u) == u));
         let turns = (0..=6).flat_map(|i| [f64::from(i), -f64::from(i)]);
-        let far_enough = |p: &Vec2| distance(*p, other) >= apart - 1.0;
-        if let Some(p) = turns
-            .clone()
-            .map(point)
-            .find(|p| far_enough(p) && reachable(p))
-        {
+        let targets: Vec<Vec2> = turns.map(point).filter(reachable).collect();
+        if let Some(&p) = targets.iter().find(|p| distance(**p, other) >= apart - 1.0) {
             return p;
         }
         let corners = map.map(|m| {
@@ -316,9 +312,8 @@ impl MichelsonAgent {
                 .flat_map(|x| [y0, (y0 + y1) / 2.0, y1].map(|y| inside(m.predict([x, y]))))
                 .collect::<Vec<_>>()
         });
-        turns
-            .map(point)
-            .filter(|p| reachable(p))
+        targets
+            .into_iter()
             .chain(corners.into_iter().flatten())
             .max_by(|a, b| distance(*a, other).total_cmp(&distance(*b, other)))
             .unwrap_or(centre)
