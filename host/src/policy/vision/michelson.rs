@@ -421,12 +421,10 @@ impl MichelsonAgent {
 
     /// Sizes a fresh mirror's probes at the other's response (mounts of a kind respond alike).
     fn scale_probe(&mut self, k: usize, size: Vec2) {
-        let Some(known) = self.trackers[1 - k].model() else {
+        let known = self.trackers[1 - k].model();
+        let Some(known) = known.filter(|_| self.trackers[k].is_fresh()) else {
             return;
         };
-        if !self.trackers[k].is_fresh() {
-            return;
-        }
         let wanted = self.useful_move(k, size);
         let [lo, hi] = self.trackers[k].probe_bounds();
         let probe = [0, 1].map(|axis| {
@@ -499,11 +497,8 @@ impl MichelsonAgent {
         let now = self.command[k];
         let [low, high] = self.trackers[k].range[0];
         let step = CAUTIOUS_SHARE * (high - low);
-        let towards_middle = if now[0] > (low + high) / 2.0 {
-            -step
-        } else {
-            step
-        };
+        let middle = (low + high) / 2.0;
+        let towards_middle = if now[0] > middle { -step } else { step };
         self.set_mirror(k, self.trackers[k].clamp([now[0] + towards_middle, now[1]]));
         self.send(Step::Attribute { k, appeared }, false)
     }
