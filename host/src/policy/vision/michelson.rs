@@ -3,7 +3,7 @@
 
 use optalign_optics::Frame;
 
-use super::model::{Sighting, Tracker, Vec2, column_norm, distance};
+use super::model::{Sighting, Tracker, Vec2, column_norm, distance, nearest_point};
 use super::see::{Seen, View, motion};
 use super::sight::{Scales, sight};
 use super::tuning::{
@@ -337,11 +337,8 @@ impl MichelsonAgent {
         let border = BORDER_RADII * self.scales.radius(k);
         let at_border = (0..2).any(|a| centre[a] - (latest.image[a] - centre[a]).abs() < border);
         let merged = tracker.partial.iter().any(|s| s.order == latest.order) && !at_border;
-        let stayed = self
-            .stayed
-            .iter()
-            .min_by(|a, b| distance(**a, latest.image).total_cmp(&distance(**b, latest.image)));
-        merged.then_some((stayed.copied().unwrap_or(latest.image), latest.image))
+        let stayed = nearest_point(self.stayed.iter().copied(), latest.image);
+        merged.then_some((stayed.unwrap_or(latest.image), latest.image))
     }
 
     fn still_in_view(&self, k: usize, view: &View) -> bool {
@@ -411,12 +408,13 @@ impl MichelsonAgent {
     /// Beam `k`'s clean centre nearest `point` (match radius), bright enough by [`ALIKE_LIGHT`].
     fn find_near(&self, view: &View, k: usize, point: Vec2) -> Option<Vec2> {
         let radius = self.scales.radius(k);
-        view.beams
+        let matching = view
+            .beams
             .iter()
             .filter(|b| self.light[k].is_none_or(|light| b.signal >= ALIKE_LIGHT[0] * light))
             .filter_map(|b| sight(b, view, &self.scales, k, None).fit_centre())
-            .filter(|c| distance(*c, point) < MICHELSON_MATCH_RADII * radius)
-            .min_by(|a, b| distance(*a, point).total_cmp(&distance(*b, point)))
+            .filter(|c| distance(*c, point) < MICHELSON_MATCH_RADII * radius);
+        nearest_point(matching, point)
     }
 
     /// Sizes a fresh mirror's probes at the other's response (mounts of a kind respond alike).

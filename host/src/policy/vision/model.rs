@@ -106,6 +106,13 @@ pub fn distance(a: Vec2, b: Vec2) -> f64 {
     (a[0] - b[0]).hypot(a[1] - b[1])
 }
 
+/// The first of `points` nearest `place`.
+pub fn nearest_point(points: impl IntoIterator<Item = Vec2>, place: Vec2) -> Option<Vec2> {
+    points
+        .into_iter()
+        .min_by(|a, b| distance(*a, place).total_cmp(&distance(*b, place)))
+}
+
 /// A square grid of `spacing` around `centre`, ring by ring outwards (ring k: its 8k points).
 pub fn square_rings(centre: Vec2, spacing: Vec2, multiples: RangeInclusive<i32>) -> Vec<Vec2> {
     multiples
