@@ -120,6 +120,15 @@ impl Servo {
         self.pending = Pending::Nothing;
     }
 
+    /// `x` (a probe or step) longer by [`SERVO_GROWTH`] if `grow`, else shorter, within the bounds.
+    fn resized(&self, x: f64, grow: bool) -> f64 {
+        if grow {
+            (x * SERVO_GROWTH).min(self.bounds[1])
+        } else {
+            (x / SERVO_GROWTH).max(self.bounds[0])
+        }
+    }
+
     /// A spot's error from `target`: a whole one's distance; a cut one ranks behind any whole one.
     fn error(&self, spot: &Spot, target: Vec2, side: f64) -> f64 {
         if spot.whole {
@@ -161,7 +170,7 @@ impl Servo {
             // Lost: the other way, then shorter.
             *sign = -*sign;
             if std::mem::replace(flipped, true) {
-                self.probe = (self.probe / SERVO_GROWTH).max(self.bounds[0]);
+                self.probe = self.resized(self.probe, false);
             }
             return;
         }
@@ -169,7 +178,7 @@ impl Servo {
         if let (Pending::Probe { axis, .. }, Some(s), Some(best)) = (self.pending, seen, self.best)
         {
             if distance(s.at, best.spot.at) < MIN_MOVE_SHARE * side {
-                self.probe = (self.probe * SERVO_GROWTH).min(self.bounds[1]);
+                self.probe = self.resized(self.probe, true);
             } else if (tilt[axis] - best.tilt[axis]).abs() > 0.5 {
                 self.probed[axis] = true;
                 self.cut |= !(s.whole && best.spot.whole);
@@ -202,13 +211,11 @@ impl Servo {
                 }
             }
         }
-        if let (true, Some(spot)) = (better, seen) {
+        if self.pending == Pending::Step {
+            self.radius = self.resized(self.radius, better);
+        }
+        if let Some(spot) = seen.filter(|_| better) {
             self.best = Some(Best { tilt, spot });
-            if self.pending == Pending::Step {
-                self.radius = (self.radius * SERVO_GROWTH).min(self.bounds[1]);
-            }
-        } else if self.pending == Pending::Step {
-            self.radius = (self.radius / SERVO_GROWTH).max(self.bounds[0]);
         }
         self.last = seen.map(|_| tilt).or(self.last);
     }
@@ -258,7 +265,7 @@ impl Servo {
             }
             self.refuted_at = Some(best.tilt);
             if !best.spot.whole {
-                self.probe = (self.probe * SERVO_GROWTH).min(self.bounds[1]);
+                self.probe = self.resized(self.probe, true);
             }
             return self.next(target);
         }
