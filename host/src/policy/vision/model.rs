@@ -321,8 +321,7 @@ impl Tracker {
     /// Whether `command` lands the feature within `tolerance` px of the prediction at `confidence`.
     fn sure_at(&self, command: Vec2, tolerance: f64, confidence: f64) -> bool {
         self.response().is_some_and(|fit| {
-            let dir = self.dir_towards(command);
-            fit.sure_at(command, dir, tolerance, confidence)
+            fit.sure_at(command, self.dir_towards(command), tolerance, confidence)
         })
     }
 
@@ -342,12 +341,11 @@ impl Tracker {
     /// Whether a sighting at `image` for `command` passes the chi-square test (`true` without one).
     pub fn believes(&self, command: Vec2, image: Vec2) -> bool {
         self.response().is_none_or(|fit| {
-            let point = Point {
+            fit.believes(Point {
                 command,
                 dir: self.dir_towards(command),
                 image,
-            };
-            fit.believes(point)
+            })
         })
     }
 
